@@ -50,13 +50,13 @@ WATER = Medium(
     wavelength=400.0,
     refractive_index=1.3442,
     group_index=1.381,
-    absorption_length=553.0,
-    scattering_length=132.0,
+    absorption_length=425.0 * 1.30,
+    scattering_length=176.0 * 0.75,
     rayleigh_anisotropy=0.835,
     density=1.0,
     notes=(
         "WCSim water at 400 nm (WCSimConstructMaterials.cc, skdetsim tables): n 1.3442,"
-        " group index 1.381 [derived], absorption 425 m x ABWFF 1.30 = 553 m, Rayleigh"
+        " group index 1.381 [derived], absorption 425 m x ABWFF 1.30 = 552.5 m, Rayleigh"
         " 176 m x RAYFF 0.75 = 132 m; phase-function a = (1-d)/(1+d) = 0.835 for"
         " depolarisation d = 0.09 (Morel 1974)."
     ),

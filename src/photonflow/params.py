@@ -66,8 +66,11 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("spe_width", "p.e.", "positive", "single-p.e. charge width (sigma / mean)"),
     ParamSpec("dark_rate", "Hz", "positive", "dark-noise rate per sensor"),
     ParamSpec(
-        "angular_acceptance", "", "positive",
-        "relative acceptance at incidence 0, 10, ..., 90 degrees", size=N_ACCEPTANCE_ANGLES,
+        "angular_acceptance",
+        "",
+        "positive",
+        "relative acceptance at incidence 0, 10, ..., 90 degrees",
+        size=N_ACCEPTANCE_ANGLES,
     ),
 )
 
@@ -129,18 +132,14 @@ class Params:
         new = {}
         for name, value in changes.items():
             if name not in SPECS:
-                raise ConfigError(
-                    f"params.{name}: unknown parameter; known: {', '.join(SPECS)}"
-                )
+                raise ConfigError(f"params.{name}: unknown parameter; known: {', '.join(SPECS)}")
             old = getattr(self, name)
             array = jnp.asarray(value, dtype=jnp.result_type(old))
             if array.shape != old.shape:
                 if SPECS[name].per_sensor and array.ndim == 0:
                     array = jnp.broadcast_to(array, old.shape)
                 else:
-                    raise ConfigError(
-                        f"params.{name}: shape {array.shape}, expected {old.shape}"
-                    )
+                    raise ConfigError(f"params.{name}: shape {array.shape}, expected {old.shape}")
             new[name] = array
         return dataclasses.replace(self, **new)
 
@@ -252,7 +251,9 @@ def validate_params(params: Params, n_sensors: int | None = None) -> Params:
         where = f"[{i}]" if value.ndim else ""
         unit = f" {spec.unit}" if spec.unit else ""
         rule = "is NaN" if np.isnan(flat[i]) else _DOMAIN_RULES[spec.domain]
-        raise ConfigError(f"params.{spec.name}{where} = {format_value(float(flat[i]))}{unit}: {rule}")
+        raise ConfigError(
+            f"params.{spec.name}{where} = {format_value(float(flat[i]))}{unit}: {rule}"
+        )
     return params
 
 

@@ -113,9 +113,9 @@ def make_detector(
     if normals.shape != positions.shape:
         raise ConfigError(f"{source}.normals: shape {normals.shape}, expected ({n}, 3)")
     radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (n,)).copy()
-    types = np.broadcast_to(
-        np.asarray(0 if sensor_type is None else sensor_type), (n,)
-    ).astype(np.int32)
+    types = np.broadcast_to(np.asarray(0 if sensor_type is None else sensor_type), (n,)).astype(
+        np.int32
+    )
 
     for field_name, values in (("positions", positions), ("normals", normals), ("radius", radius)):
         bad = np.flatnonzero(~np.all(np.isfinite(values.reshape(n, -1)), axis=1))

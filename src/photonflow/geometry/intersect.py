@@ -46,8 +46,9 @@ def _first_disc_hit(origin, direction, centres, normals, radii):
 
 
 @functools.partial(jax.jit, static_argnames=("batch_size",))
-def ray_sensor_hits(origins, directions, sensor_positions, sensor_normals, sensor_radius,
-                    batch_size: int = 256):
+def ray_sensor_hits(
+    origins, directions, sensor_positions, sensor_normals, sensor_radius, batch_size: int = 256
+):
     """First sensor disc hit by each ray (brute force over all sensors).
 
     Args:
@@ -61,6 +62,7 @@ def ray_sensor_hits(origins, directions, sensor_positions, sensor_normals, senso
         ``(sensor_index, distance)``: (R,) int32 index of the nearest disc hit (-1 for
         none) and (R,) distance to it in m (inf for none).
     """
+
     def one(ray):
         return _first_disc_hit(ray[0], ray[1], sensor_positions, sensor_normals, sensor_radius)
 

@@ -123,40 +123,12 @@ def barrel_caps_layout_for_coverage(
     )
 
 
-def relax_on_sphere(unit: np.ndarray, iterations: int = 60) -> np.ndarray:
-    """Spread points on the unit sphere apart by short-range repulsion.
-
-    Each iteration pushes every pair closer than the ideal hexagonal pitch apart by
-    half their overlap and projects back onto the sphere; this raises the smallest
-    nearest-neighbour distance of a Fibonacci lattice from ~0.87 to ~0.97 of the pitch,
-    so that densely packed discs (JUNO's 78 % coverage) do not overlap.
-    """
-    from scipy.spatial import cKDTree
-
-    unit = np.array(unit, dtype=np.float64)
-    pitch = math.sqrt(8 * math.pi / (math.sqrt(3.0) * len(unit)))
-    for _ in range(iterations):
-        pairs = cKDTree(unit).query_pairs(pitch, output_type="ndarray")
-        if len(pairs) == 0:
-            break
-        delta = unit[pairs[:, 0]] - unit[pairs[:, 1]]
-        distance = np.linalg.norm(delta, axis=1, keepdims=True)
-        push = 0.25 * (pitch - distance) * delta / np.maximum(distance, 1e-12)
-        step = np.zeros_like(unit)
-        np.add.at(step, pairs[:, 0], push)
-        np.add.at(step, pairs[:, 1], -push)
-        unit += step
-        unit /= np.linalg.norm(unit, axis=1, keepdims=True)
-    return unit
-
-
-def fibonacci_sphere_layout(
-    radius: float, count: int, *, relax: bool = False
-) -> tuple[np.ndarray, np.ndarray]:
+def fibonacci_sphere_layout(radius: float, count: int) -> tuple[np.ndarray, np.ndarray]:
     """``count`` sensors on a sphere of ``radius`` (m) on a Fibonacci (golden-angle) lattice.
 
-    With ``relax=True`` the lattice is evened out by ``relax_on_sphere`` (for coverage
-    above ~60 %, where plain Fibonacci discs would touch). Returns positions (m) and
+    Nearly uniform, but its nearest-neighbour distance is only ~0.88 of the ideal
+    hexagonal pitch, so discs touch above ~70 % coverage: use
+    ``latitude_rings_sphere_layout`` for denser arrays. Returns positions (m) and
     inward normals.
     """
     k = np.arange(count, dtype=np.float64)
@@ -164,8 +136,6 @@ def fibonacci_sphere_layout(
     rho = np.sqrt(np.clip(1.0 - z * z, 0.0, 1.0))
     phi = k * GOLDEN_ANGLE
     unit = np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=1)
-    if relax:
-        unit = relax_on_sphere(unit)
     return radius * unit, -unit
 
 
@@ -174,7 +144,70 @@ def fibonacci_sphere_layout_for_coverage(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fibonacci sphere layout with the count that gives a photocathode coverage."""
     count = round(coverage * 4 * math.pi * radius**2 / (math.pi * sensor_radius**2))
-    return fibonacci_sphere_layout(radius, count, relax=coverage > 0.6)
+    if coverage > 0.6:
+        return latitude_rings_sphere_layout(radius, count, min_pitch=2 * sensor_radius)
+    return fibonacci_sphere_layout(radius, count)
+
+
+def _ring_counts(radius: float, pitch: float) -> tuple[np.ndarray, np.ndarray]:
+    """Polar angles (rad) and sensor counts of latitude rings with chord pitch >= ``pitch``."""
+    ring_step = 2.0 * math.asin(min(1.0, pitch / (2.0 * radius)))
+    n_rings = max(1, int(math.floor(math.pi / ring_step)))
+    theta = (np.arange(n_rings) + 0.5) * math.pi / n_rings
+    ring_radius = radius * np.sin(theta)
+    half_angle = np.arcsin(np.minimum(1.0, pitch / (2.0 * ring_radius)))
+    counts = np.maximum(1, np.floor(math.pi / half_angle + 1e-9)).astype(int)
+    return theta, counts
+
+
+def latitude_rings_sphere_layout(
+    radius: float, count: int, *, min_pitch: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` sensors on a sphere of ``radius`` (m) in rings of constant latitude.
+
+    Rings are spaced by, and sensors within a ring separated by, at least the largest
+    chord pitch that still fits ``count`` sensors (found by bisection); surplus sensors
+    are removed one per ring from the fullest rings. Any two sensors are then at least
+    that pitch apart (the rings are also at least the pitch apart), so discs of
+    diameter <= pitch never overlap: up to ~78 % coverage (square packing, pi/4),
+    where a Fibonacci lattice's discs already touch above ~70 %. This is also how
+    large spherical detectors such as JUNO mount their PMTs. Returns positions (m)
+    and inward normals.
+    """
+    low, high = 1e-6 * radius, 2.0 * radius
+    for _ in range(200):
+        middle = 0.5 * (low + high)
+        if _ring_counts(radius, middle)[1].sum() >= count:
+            low = middle
+        else:
+            high = middle
+    pitch = low
+    if min_pitch is not None and pitch < min_pitch:
+        raise ConfigError(
+            f"layout.count = {count}: sensors {min_pitch:.4g} m apart do not fit on a"
+            f" sphere of radius {radius:.4g} m in latitude rings (pitch {pitch:.4g} m)"
+        )
+    theta, counts = _ring_counts(radius, pitch)
+    surplus = int(counts.sum() - count)
+    while surplus > 0:
+        fullest = np.argsort(-counts, kind="stable")[:surplus]
+        counts[fullest] -= 1
+        surplus = int(counts.sum() - count)
+    units = []
+    for ring, (polar, n) in enumerate(zip(theta, counts, strict=True)):
+        phi = (np.arange(n) + 0.5) * 2 * math.pi / n + ring * GOLDEN_ANGLE
+        units.append(
+            np.stack(
+                [
+                    np.sin(polar) * np.cos(phi),
+                    np.sin(polar) * np.sin(phi),
+                    np.full(n, np.cos(polar)),
+                ],
+                axis=1,
+            )
+        )
+    unit = np.concatenate(units)
+    return radius * unit, -unit
 
 
 def box_grid_layout(
@@ -271,7 +304,9 @@ def expand_modules(
     for tilt, count in rings:
         for k in range(count):
             phi = 2 * math.pi * k / count
-            directions.append((math.cos(tilt), math.sin(tilt) * math.cos(phi), math.sin(tilt) * math.sin(phi)))
+            directions.append(
+                (math.cos(tilt), math.sin(tilt) * math.cos(phi), math.sin(tilt) * math.sin(phi))
+            )
     local = np.asarray(directions)  # (19, 3) in (n, e1, e2)
     u = (
         local[None, :, 0:1] * module_normals[:, None, :]

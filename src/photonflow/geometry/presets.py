@@ -22,6 +22,7 @@ from .layouts import (
     barrel_caps_layout_for_coverage,
     expand_modules,
     fibonacci_sphere_layout,
+    latitude_rings_sphere_layout,
     string_layout,
 )
 from .shapes import Cylinder, OpenMedium, Sphere
@@ -126,32 +127,33 @@ def juno() -> Detector:
     Acrylic sphere 35.4 m inner diameter, steel shell 40.1 m, 17,612 20-inch PMTs,
     78 % coverage (NST 36:84, 2025; indico.cern.ch/event/1291157). The optical
     boundary is the PMT sphere (``JUNO_PMT_SPHERE_RADIUS``); the acrylic vessel and
-    the water buffer are not separate media. Fibonacci lattice; R12860 values for the
+    the water buffer are not separate media. Latitude rings (as JUNO mounts its PMTs;
+    a Fibonacci lattice's discs would overlap at 78 %); R12860 values for the
     sensors (JUNO's Hamamatsu 20-inch PMTs are that model).
     """
     shape = Sphere(radius=JUNO_PMT_SPHERE_RADIUS)
-    positions, normals = fibonacci_sphere_layout(shape.radius, 17612, relax=True)
+    positions, normals = latitude_rings_sphere_layout(shape.radius, 17612, min_pitch=0.508)
     return _single_model("JUNO", shape, positions, normals, "R12860")
 
 
 #: TAO: photosensitive SiPM area (m^2) and the radius (m) of the sphere it tiles.
 TAO_SIPM_AREA = 10.0
-TAO_SIPM_SPHERE_RADIUS = 1.0
+TAO_SIPM_SPHERE_RADIUS = 1.02
 
 
 def tao() -> Detector:
     """TAO: 1.8 m acrylic sphere of GdLS viewed by ~10 m^2 of SiPM tiles.
 
     1.8 m diameter acrylic sphere, ~10 m^2 of SiPMs with > 50 % PDE (arXiv:2005.08745).
-    Tiles modelled as 4,000 discs of 25 cm^2 each (10 m^2) on a relaxed Fibonacci
-    lattice of a 1.0 m sphere. The radius of the tile shell is not in the reference
-    sheet; 1.0 m puts the tiles outside the 0.9 m vessel and keeps discs (which,
-    unlike square tiles, cannot cover more than 91 %) from overlapping.
+    Tiles modelled as 4,000 discs of 25 cm^2 each (10 m^2) in latitude rings on a
+    sphere of 1.02 m. The radius of the tile shell is not in the reference sheet;
+    1.02 m puts the tiles outside the 0.9 m vessel and keeps the discs (which, unlike
+    square tiles, cannot cover more than ~78 % in rings) from overlapping.
     """
     count = 4000
     shape = Sphere(radius=TAO_SIPM_SPHERE_RADIUS)
-    positions, normals = fibonacci_sphere_layout(shape.radius, count, relax=True)
     radius = math.sqrt(TAO_SIPM_AREA / count / math.pi)
+    positions, normals = latitude_rings_sphere_layout(shape.radius, count, min_pitch=2 * radius)
     return make_detector(shape, positions, normals, radius, 0, name="TAO", sensor_models=("SiPM",))
 
 
@@ -191,7 +193,9 @@ def toy_cylinder() -> Detector:
     R14688-like 8-inch PMTs.
     """
     shape = Cylinder(radius=2.0, height=4.0)
-    positions, normals = barrel_caps_layout(shape.radius, shape.height, 4, 30, 40, cap_margin=0.1016)
+    positions, normals = barrel_caps_layout(
+        shape.radius, shape.height, 4, 30, 40, cap_margin=0.1016
+    )
     return _single_model("TOY_CYLINDER", shape, positions, normals, "R14688")
 
 
@@ -210,8 +214,9 @@ PRESETS: dict[str, Preset] = {
         Preset("IWCD", iwcd, Stated(368 * 19, None, "WCSim: (24 x 11 + 2 x 52) x 19")),
         Preset("WCTE", wcte, Stated(106 * 19, None, "WCSim mPMT_Position_WCTE.txt: 106 x 19")),
         Preset("JUNO", juno, Stated(17612, 0.78, "NST 36:84 (2025)"), medium="scintillator"),
-        Preset("TAO", tao, Stated(None, None, "arXiv:2005.08745: ~10 m^2 SiPM"),
-               medium="scintillator"),
+        Preset(
+            "TAO", tao, Stated(None, None, "arXiv:2005.08745: ~10 m^2 SiPM"), medium="scintillator"
+        ),
         Preset("EOS", eos, Stated(206, None, "arXiv:2311.05080")),
         Preset("ICECUBE_MINI", icecube_mini, Stated(7 * 60, None, "IceCube: 60 DOMs/string")),
         Preset("TOY_CYLINDER", toy_cylinder, Stated(200, None, "toy")),
@@ -220,14 +225,18 @@ PRESETS: dict[str, Preset] = {
 }
 
 
-@functools.cache
 def preset_detector(name: str) -> Detector:
     """The ``Detector`` of a preset (case-insensitive name); built once and cached."""
-    key = name.upper()
+    key = str(name).upper()
     if key not in PRESETS:
         raise ConfigError(
             f"detector = {format_value(name)}: unknown preset; known: {', '.join(PRESETS)}"
         )
+    return _build_preset(key)
+
+
+@functools.cache
+def _build_preset(key: str) -> Detector:
     return PRESETS[key].build()
 
 
@@ -248,5 +257,3 @@ def preset_table() -> list[dict[str, object]]:
             }
         )
     return rows
-
-

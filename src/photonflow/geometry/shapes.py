@@ -194,9 +194,7 @@ class Cylinder(Shape):
         barrel = jnp.stack(
             [-points[..., 0] / safe_rho, -points[..., 1] / safe_rho, jnp.zeros_like(rho)], -1
         )
-        cap = jnp.stack(
-            [jnp.zeros_like(rho), jnp.zeros_like(rho), -jnp.sign(points[..., 2])], -1
-        )
+        cap = jnp.stack([jnp.zeros_like(rho), jnp.zeros_like(rho), -jnp.sign(points[..., 2])], -1)
         on_cap = (0.5 * self.height - jnp.abs(points[..., 2])) < (self.radius - rho)
         return jnp.where(on_cap[..., None], cap, barrel)
 
@@ -331,14 +329,11 @@ class OpenMedium(Shape):
     has_walls: ClassVar[bool] = False
 
     def __post_init__(self):
-        _check_positive(
-            "open", world_radius=self.world_radius, world_height=self.world_height
-        )
+        _check_positive("open", world_radius=self.world_radius, world_height=self.world_height)
 
     def describe(self) -> str:
         return (
-            f"open medium, world {2 * self.world_radius:.0f} m diameter"
-            f" x {self.world_height:.0f} m"
+            f"open medium, world {2 * self.world_radius:.0f} m diameter x {self.world_height:.0f} m"
         )
 
     @property
@@ -364,14 +359,10 @@ class OpenMedium(Shape):
         return Cylinder(self.world_radius, self.world_height).inward_normal(points)
 
     def _raw_interval(self, origins, directions):
-        return _cylinder_interval(
-            origins, directions, self.world_radius, 0.5 * self.world_height
-        )
+        return _cylinder_interval(origins, directions, self.world_radius, 0.5 * self.world_height)
 
 
-SHAPES: dict[str, type[Shape]] = {
-    cls.kind: cls for cls in (Cylinder, Sphere, Box, OpenMedium)
-}
+SHAPES: dict[str, type[Shape]] = {cls.kind: cls for cls in (Cylinder, Sphere, Box, OpenMedium)}
 
 
 def shape_from_dict(spec: dict) -> Shape:
@@ -391,7 +382,9 @@ def shape_from_dict(spec: dict) -> Shape:
         )
     missing = [n for n in names if n not in spec]
     if missing:
-        raise ConfigError(f"detector.shape.{missing[0]}: missing (a {kind} needs {', '.join(names)})")
+        raise ConfigError(
+            f"detector.shape.{missing[0]}: missing (a {kind} needs {', '.join(names)})"
+        )
     values = {}
     for name in names:
         value = spec[name]
