@@ -219,3 +219,14 @@ def test_validation_accepts_defaults_and_reports_sensor_index(toy):
         validate_params(bad, toy.n_sensors)
     with pytest.raises(ConfigError, match=r"params.efficiency: shape \(200,\), expected \(5,\)"):
         validate_params(params, 5)
+
+
+def test_parameters_doc_lists_every_field_with_its_unit():
+    """docs/parameters.md documents every field (a new field must be documented)."""
+    from pathlib import Path
+
+    doc = (Path(__file__).parents[1] / "docs" / "parameters.md").read_text()
+    for spec in PARAM_SPECS:
+        row = next((line for line in doc.splitlines() if line.startswith(f"| `{spec.name}`")), "")
+        assert row, f"{spec.name} missing from docs/parameters.md"
+        assert f"| {spec.unit or '-'} |" in row

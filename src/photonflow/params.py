@@ -32,7 +32,8 @@ class ParamSpec:
     Attributes:
         name: field name.
         unit: physical unit ("" for dimensionless).
-        domain: "positive" (log transform), "probability" (logit), "correlation"
+        domain: "length" (> 0, inf allowed; log transform), "positive" (finite > 0;
+            log), "probability" (logit), "correlation"
             (open interval (-1, 1), atanh), "above_one" (log(x - 1)) or "real" (identity).
         per_sensor: shape (N,) instead of a scalar.
         size: fixed vector length (0 for scalars or per-sensor fields).
@@ -50,9 +51,9 @@ class ParamSpec:
 N_ACCEPTANCE_ANGLES = 10
 
 PARAM_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("absorption_length", "m", "positive", "bulk absorption length"),
-    ParamSpec("scattering_length", "m", "positive", "Rayleigh scattering length"),
-    ParamSpec("mie_length", "m", "positive", "Mie scattering length (inf = off)"),
+    ParamSpec("absorption_length", "m", "length", "bulk absorption length"),
+    ParamSpec("scattering_length", "m", "length", "Rayleigh scattering length"),
+    ParamSpec("mie_length", "m", "length", "Mie scattering length (inf = off)"),
     ParamSpec("mie_g", "", "correlation", "Henyey-Greenstein asymmetry of Mie scattering"),
     ParamSpec("refractive_index", "", "above_one", "phase refractive index (Cherenkov angle)"),
     ParamSpec("group_index", "", "above_one", "group index: photons travel at c / group_index"),
@@ -156,7 +157,8 @@ class Params:
         unknown = sorted(set(values) - set(SPECS))
         if unknown:
             raise ConfigError(f"params.{unknown[0]}: unknown parameter; known: {', '.join(SPECS)}")
-        return cls(**{name: jnp.asarray(values[name], dtype=float) for name in SPECS})
+        dtype = jnp.zeros(()).dtype  # float32 unless 64-bit mode is on
+        return cls(**{name: jnp.asarray(values[name], dtype=dtype) for name in SPECS})
 
     def to_unconstrained(self) -> Params:
         """The same pytree with every field mapped to unconstrained real coordinates."""
@@ -169,6 +171,7 @@ class Params:
 
 
 _FORWARD = {
+    "length": jnp.log,
     "positive": jnp.log,
     "probability": lambda x: jnp.log(x) - jnp.log1p(-x),
     "correlation": jnp.arctanh,
@@ -176,6 +179,7 @@ _FORWARD = {
     "real": lambda x: x,
 }
 _INVERSE = {
+    "length": jnp.exp,
     "positive": jnp.exp,
     "probability": jax.nn.sigmoid,
     "correlation": jnp.tanh,
@@ -197,7 +201,8 @@ def from_unconstrained(unconstrained: Params) -> Params:
 
 
 _DOMAIN_RULES = {
-    "positive": "must be > 0 (inf allowed)",
+    "length": "must be > 0 (inf allowed)",
+    "positive": "must be finite and > 0",
     "probability": "must be in [0, 1]",
     "correlation": "must be in (-1, 1)",
     "above_one": "must be finite and >= 1",
@@ -208,10 +213,12 @@ _DOMAIN_RULES = {
 def _in_domain(domain: str, value: np.ndarray) -> np.ndarray:
     """Element-wise: does each value lie in the field's domain?"""
     ok = ~np.isnan(value)
-    if domain == "positive":
+    if domain == "length":
         return ok & (value > 0)
     ok &= np.isfinite(value)
-    if domain == "probability":
+    if domain == "positive":
+        ok &= value > 0
+    elif domain == "probability":
         ok &= (value >= 0) & (value <= 1)
     elif domain == "correlation":
         ok &= np.abs(value) < 1
@@ -234,9 +241,10 @@ def _check_shape(spec: ParamSpec, shape: tuple[int, ...], n_sensors: int | None)
 def validate_params(params: Params, n_sensors: int | None = None) -> Params:
     """Check every field's shape and domain; raise a one-line ``ConfigError`` if bad.
 
-    Lengths and rates may be ``inf`` (e.g. no Mie scattering) but not NaN or <= 0
-    (a dark rate of 0 is allowed); probabilities must lie in [0, 1]; per-sensor
-    fields must have ``n_sensors`` entries. Returns ``params`` unchanged.
+    Lengths may be ``inf`` (e.g. no Mie scattering) but not NaN or <= 0; other
+    positive quantities must be finite (a dark rate of 0 is allowed); probabilities
+    must lie in [0, 1]; per-sensor fields must have ``n_sensors`` entries. Returns
+    ``params`` unchanged.
     """
     for spec in PARAM_SPECS:
         value = np.asarray(getattr(params, spec.name), dtype=np.float64)
