@@ -1,0 +1,26 @@
+"""Event files: ``Event``/``Truth`` records and their HDF5 storage.
+
+Modules: ``events`` (the records), ``hdf5`` (the on-disk layout, see
+``docs/file-format.md``), ``writer`` (crash-safe streaming writes), ``reader``
+(lazy reads) and ``summary`` (statistics for ``photonflow info``).
+"""
+
+from .events import Event, Truth, make_event
+from .hdf5 import FORMAT, FORMAT_VERSION
+from .reader import EventFile, read_events
+from .summary import format_summary, summarize_events
+from .writer import EventWriter, write_events
+
+__all__ = [
+    "FORMAT",
+    "FORMAT_VERSION",
+    "Event",
+    "EventFile",
+    "EventWriter",
+    "Truth",
+    "format_summary",
+    "make_event",
+    "read_events",
+    "summarize_events",
+    "write_events",
+]
