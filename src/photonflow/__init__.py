@@ -5,23 +5,41 @@ Units everywhere: metres, nanoseconds, MeV, radians; wavelength in nm.
 """
 
 from ._version import __version__
+from .config import load_config, load_detector
 from .errors import ConfigError, EventFileError, PhotonflowError, SensorFileError
-from .geometry import Box, Cylinder, Detector, OpenMedium, Sphere
+from .geometry import Box, Cylinder, Detector, OpenMedium, Sphere, make_detector
 from .geometry.presets import preset_table
+from .io import Event, EventFile, Truth, read_events, write_events
 from .params import Params, default_params
+
+
+def presets() -> dict[str, dict[str, object]]:
+    """The detector presets: name -> row with ``shape``, ``dimensions`` (text, m),
+    ``sensors`` (count), ``coverage`` (photocathode fraction of the wall, nan for an
+    open medium), ``sensor_model`` and ``medium``. Iterating gives the names."""
+    return {row["name"]: row for row in preset_table()}
+
 
 __all__ = [
     "Box",
     "ConfigError",
     "Cylinder",
     "Detector",
+    "Event",
+    "EventFile",
     "EventFileError",
     "OpenMedium",
     "Params",
     "PhotonflowError",
     "SensorFileError",
     "Sphere",
+    "Truth",
     "__version__",
     "default_params",
-    "preset_table",
+    "load_config",
+    "load_detector",
+    "make_detector",
+    "presets",
+    "read_events",
+    "write_events",
 ]

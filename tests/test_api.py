@@ -1,0 +1,52 @@
+"""The top-level public API named in issue 2 is a contract: names and signatures."""
+
+import inspect
+
+import numpy as np
+
+import photonflow as pf
+
+
+def test_top_level_names():
+    for name in (
+        "presets",
+        "load_detector",
+        "Params",
+        "default_params",
+        "Event",
+        "read_events",
+        "write_events",
+    ):
+        assert hasattr(pf, name), name
+
+
+def test_presets_returns_rows_by_name():
+    table = pf.presets()
+    assert "SK" in table and "TOY_SPHERE" in table
+    assert table["SK"]["sensors"] == 11146
+    assert table["JUNO"]["shape"] == "sphere"
+
+
+def test_load_detector_attributes():
+    detector = pf.load_detector("TOY_SPHERE")
+    n = detector.n_sensors
+    assert detector.sensor_positions.shape == (n, 3)
+    assert detector.sensor_normals.shape == (n, 3)
+    assert detector.sensor_radius.shape == (n,)
+    assert detector.shape == pf.Sphere(radius=2.0)
+
+
+def test_default_params_signature_and_event_fields(tmp_path):
+    assert list(inspect.signature(pf.default_params).parameters) == ["detector", "medium"]
+    assert inspect.signature(pf.default_params).parameters["medium"].default == "water"
+    event = pf.Event(
+        np.array([1, 2], np.int32),
+        np.array([1.0, 2.5], np.float32),
+        np.array([10.0, 12.0], np.float32),
+    )
+    assert event.truth is None
+    detector = pf.load_detector("TOY_CYLINDER")
+    path = pf.write_events(tmp_path / "e.h5", [event], detector, pf.default_params(detector))
+    with pf.read_events(path) as events:
+        np.testing.assert_array_equal(events[0].sensor_ids, [1, 2])
+        np.testing.assert_array_equal(events[0].charge, [1.0, 2.5])
