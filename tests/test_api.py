@@ -50,3 +50,17 @@ def test_default_params_signature_and_event_fields(tmp_path):
     with pf.read_events(path) as events:
         np.testing.assert_array_equal(events[0].sensor_ids, [1, 2])
         np.testing.assert_array_equal(events[0].charge, [1.0, 2.5])
+
+
+def test_readme_python_example_runs(capsys):
+    """The README's Python example is real code: run it and check what it prints."""
+    from pathlib import Path
+
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    code = readme.split("```python\n", 1)[1].split("```", 1)[0]
+    exec(compile(code, "README.md", "exec"), {})
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0].startswith("SK: cylinder 33.68 m diameter x 36.20 m, 11146 sensors")
+    assert printed[1] == "60.000 m"
+    assert printed[2] == "40.3 % coverage, 11146 sensors"
+    assert "JUNO" in printed[3]

@@ -17,10 +17,16 @@ import math
 from typing import ClassVar
 
 import jax.numpy as jnp
+import numpy as np
 
 from ..errors import ConfigError, format_value
 
 _INF = jnp.inf
+
+
+def _xp(points):
+    """numpy for host arrays (no compilation per new sensor count), jax.numpy otherwise."""
+    return np if isinstance(points, np.ndarray | list | tuple | float | int) else jnp
 
 
 def _check_positive(shape: str, **values: float) -> None:
@@ -183,20 +189,22 @@ class Cylinder(Shape):
         return math.hypot(2 * self.radius, self.height)
 
     def distance_to_wall(self, points):
-        points = jnp.asarray(points)
-        rho = jnp.hypot(points[..., 0], points[..., 1])
-        return jnp.minimum(self.radius - rho, 0.5 * self.height - jnp.abs(points[..., 2]))
+        xp = _xp(points)
+        points = xp.asarray(points)
+        rho = xp.hypot(points[..., 0], points[..., 1])
+        return xp.minimum(self.radius - rho, 0.5 * self.height - xp.abs(points[..., 2]))
 
     def inward_normal(self, points):
-        points = jnp.asarray(points)
-        rho = jnp.hypot(points[..., 0], points[..., 1])
-        safe_rho = jnp.where(rho > 0, rho, 1.0)
-        barrel = jnp.stack(
-            [-points[..., 0] / safe_rho, -points[..., 1] / safe_rho, jnp.zeros_like(rho)], -1
+        xp = _xp(points)
+        points = xp.asarray(points)
+        rho = xp.hypot(points[..., 0], points[..., 1])
+        safe_rho = xp.where(rho > 0, rho, 1.0)
+        barrel = xp.stack(
+            [-points[..., 0] / safe_rho, -points[..., 1] / safe_rho, xp.zeros_like(rho)], -1
         )
-        cap = jnp.stack([jnp.zeros_like(rho), jnp.zeros_like(rho), -jnp.sign(points[..., 2])], -1)
-        on_cap = (0.5 * self.height - jnp.abs(points[..., 2])) < (self.radius - rho)
-        return jnp.where(on_cap[..., None], cap, barrel)
+        cap = xp.stack([xp.zeros_like(rho), xp.zeros_like(rho), -xp.sign(points[..., 2])], -1)
+        on_cap = (0.5 * self.height - xp.abs(points[..., 2])) < (self.radius - rho)
+        return xp.where(on_cap[..., None], cap, barrel)
 
     def _raw_interval(self, origins, directions):
         return _cylinder_interval(origins, directions, self.radius, 0.5 * self.height)
@@ -243,12 +251,14 @@ class Sphere(Shape):
         return 2 * self.radius
 
     def distance_to_wall(self, points):
-        return self.radius - jnp.linalg.norm(jnp.asarray(points), axis=-1)
+        xp = _xp(points)
+        return self.radius - xp.linalg.norm(xp.asarray(points), axis=-1)
 
     def inward_normal(self, points):
-        points = jnp.asarray(points)
-        norm = jnp.linalg.norm(points, axis=-1, keepdims=True)
-        return -points / jnp.where(norm > 0, norm, 1.0)
+        xp = _xp(points)
+        points = xp.asarray(points)
+        norm = xp.linalg.norm(points, axis=-1, keepdims=True)
+        return -points / xp.where(norm > 0, norm, 1.0)
 
     def _raw_interval(self, origins, directions):
         rho = jnp.linalg.norm(origins, axis=-1)
@@ -292,17 +302,19 @@ class Box(Shape):
         return math.sqrt(self.size_x**2 + self.size_y**2 + self.size_z**2)
 
     def distance_to_wall(self, points):
-        points = jnp.asarray(points)
-        half = jnp.asarray(self.half_sizes, dtype=points.dtype)
-        return jnp.min(half - jnp.abs(points), axis=-1)
+        xp = _xp(points)
+        points = xp.asarray(points)
+        half = xp.asarray(self.half_sizes, dtype=points.dtype)
+        return xp.min(half - xp.abs(points), axis=-1)
 
     def inward_normal(self, points):
-        points = jnp.asarray(points)
-        half = jnp.asarray(self.half_sizes, dtype=points.dtype)
-        gap = half - jnp.abs(points)
-        axis = jnp.argmin(gap, axis=-1)
-        one_hot = jnp.eye(3, dtype=points.dtype)[axis]
-        return -one_hot * jnp.sign(points)
+        xp = _xp(points)
+        points = xp.asarray(points)
+        half = xp.asarray(self.half_sizes, dtype=points.dtype)
+        gap = half - xp.abs(points)
+        axis = xp.argmin(gap, axis=-1)
+        one_hot = xp.eye(3, dtype=points.dtype)[axis]
+        return -one_hot * xp.sign(points)
 
     def _raw_interval(self, origins, directions):
         t0 = jnp.full(origins.shape[:-1], -_INF, dtype=origins.dtype)
@@ -349,10 +361,11 @@ class OpenMedium(Shape):
         return math.hypot(2 * self.world_radius, self.world_height)
 
     def distance_to_wall(self, points):
-        points = jnp.asarray(points)
-        rho = jnp.hypot(points[..., 0], points[..., 1])
-        return jnp.minimum(
-            self.world_radius - rho, 0.5 * self.world_height - jnp.abs(points[..., 2])
+        xp = _xp(points)
+        points = xp.asarray(points)
+        rho = xp.hypot(points[..., 0], points[..., 1])
+        return xp.minimum(
+            self.world_radius - rho, 0.5 * self.world_height - xp.abs(points[..., 2])
         )
 
     def inward_normal(self, points):

@@ -1,0 +1,162 @@
+"""The ``photonflow`` command: parse, call the library, write, report.
+
+Every command reports bad input (any ``PhotonflowError``) as one line
+``error: <message>`` on stderr and exits with code 2, without a traceback; pictures
+and files are written under a temporary name and renamed, so a failed command leaves
+nothing behind.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, TypeVar
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from . import __version__
+from .errors import PhotonflowError
+
+#: Exit code of a command given bad input (the same as a command-line usage error).
+EXIT_BAD_INPUT = 2
+
+app = typer.Typer(
+    name="photonflow",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_show_locals=False,
+)
+
+F = TypeVar("F", bound=Callable)
+
+
+def fail(message: str) -> typer.Exit:
+    """Print ``error: <message>`` as one line on stderr; return the exit to raise (code 2)."""
+    sys.stderr.write(f"error: {' '.join(message.split())}\n")
+    sys.stderr.flush()
+    return typer.Exit(code=EXIT_BAD_INPUT)
+
+
+def command(function: F) -> F:
+    """Register ``function`` as a sub-command that turns ``PhotonflowError`` into exit 2."""
+
+    @functools.wraps(function)
+    def run(*args, **kwargs):
+        try:
+            return function(*args, **kwargs)
+        except PhotonflowError as error:
+            raise fail(str(error)) from None
+
+    app.command()(run)
+    return function
+
+
+def preset_rich_table() -> Table:
+    """The detector presets as a rich table (name, shape, dimensions, sensors, coverage %,
+    sensor model, medium), from ``photonflow.geometry.preset_table``."""
+    from .geometry.presets import preset_table
+
+    table = Table(title="photonflow detector presets", title_justify="left")
+    table.add_column("name", style="bold", no_wrap=True)
+    table.add_column("shape", no_wrap=True)
+    table.add_column("dimensions", min_width=20)
+    table.add_column("sensors", justify="right", no_wrap=True)
+    table.add_column("coverage %", justify="right", no_wrap=True)
+    table.add_column("sensor model", overflow="fold")
+    table.add_column("medium", overflow="fold")
+    for row in preset_table():
+        coverage = row["coverage"]
+        table.add_row(
+            str(row["name"]),
+            str(row["shape"]),
+            str(row["dimensions"]),
+            str(row["sensors"]),
+            "-" if math.isnan(coverage) else f"{100 * coverage:.1f}",
+            str(row["sensor_model"]),
+            str(row["medium"]),
+        )
+    return table
+
+
+def console() -> Console:
+    """A rich console on stdout; 120 columns wide when stdout is not a terminal (pipes,
+    files), so that tables are not squeezed to the 80-column default."""
+    return Console() if sys.stdout.isatty() else Console(width=120)
+
+
+def _version(show: bool) -> None:
+    if show:
+        print(f"photonflow {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_version, is_eager=True,
+                     help="Print the version and exit."),
+    ] = False,
+) -> None:
+    """Differentiable simulation, calibration and reconstruction of optical particle
+    detectors (units: m, ns, MeV, rad)."""
+
+
+@command
+def presets() -> None:
+    """List the built-in detector presets."""
+    console().print(preset_rich_table())
+
+
+@command
+def geometry(
+    detector: Annotated[str, typer.Argument(
+        metavar="NAME_OR_CONFIG", help="Preset name (see 'photonflow presets') or config file.",
+    )],
+    out: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="Picture to write (.png, .pdf, .svg); default geometry_NAME.png.",
+    )] = None,
+) -> None:
+    """Draw the sensor layout of a detector on a flat map of its wall (lengths in m)."""
+    from .config import load_detector
+    from .viz import plot_detector
+    from .viz.geometry_plot import check_picture_path
+
+    if out is not None:
+        check_picture_path(out)
+    loaded = load_detector(detector)
+    path = out if out is not None else Path(f"geometry_{loaded.name}.png")
+    plot_detector(loaded, path)
+    console().print(f"wrote {path} ({loaded.describe()})", highlight=False, soft_wrap=True)
+
+
+@command
+def info(
+    path: Annotated[Path, typer.Argument(metavar="FILE", help="Event file (HDF5).")],
+) -> None:
+    """Summarise an event file: detector, events, hits, charge and time ranges."""
+    from .io import format_summary, summarize_events
+
+    print(format_summary(summarize_events(path)))
+
+
+@command
+def demo(
+    out_dir: Annotated[Path, typer.Option(
+        "--out-dir", help="Folder for the demo's pictures and files.",
+    )] = Path("demo_output"),
+) -> None:
+    """Run the main job on the embedded default detectors and write its outputs."""
+    from .demo import run_demo
+
+    run_demo(out_dir, console())
+
+
+def main() -> None:
+    """Entry point of the ``photonflow`` console script and ``python -m photonflow``."""
+    app(prog_name="photonflow")

@@ -1,0 +1,119 @@
+"""The main job (``photonflow demo`` / ``make demo``) as a sequence of steps.
+
+Each step is a title and a function of the shared ``DemoContext`` that returns a
+one-line result and the files it wrote; ``run_demo`` runs them in order with a rich
+status display. At this stage the steps show the detector presets and draw the
+sensor layouts of the default cylinder (SK) and sphere (JUNO); the later stages
+(simulate, calibrate, reconstruct) are appended to ``demo_steps``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from rich.console import Console
+
+#: The embedded default detector of the demo (a preset name) and its sphere counterpart.
+DEFAULT_DETECTOR = "SK"
+SPHERE_DETECTOR = "JUNO"
+
+
+@dataclasses.dataclass(frozen=True)
+class DemoContext:
+    """What every step may use: the output folder and the console to report to."""
+
+    out_dir: Path
+    console: Console
+
+
+@dataclasses.dataclass(frozen=True)
+class StepResult:
+    """A step's outcome: a one-line summary and the files it wrote."""
+
+    summary: str
+    files: tuple[Path, ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
+class Step:
+    """One step of the demo: a title and the function that does it."""
+
+    title: str
+    run: Callable[[DemoContext], StepResult]
+
+
+def presets_step() -> Step:
+    """Print the table of detector presets."""
+
+    def run(context: DemoContext) -> StepResult:
+        from .cli import preset_rich_table
+
+        table = preset_rich_table()
+        context.console.print(table)
+        return StepResult(f"{table.row_count} presets")
+
+    return Step("detector presets", run)
+
+
+def geometry_step(name: str) -> Step:
+    """Draw the sensor layout of preset ``name`` to ``<out_dir>/geometry_<name>.png``."""
+
+    def run(context: DemoContext) -> StepResult:
+        from .geometry.presets import preset_detector
+        from .viz import plot_detector
+
+        detector = preset_detector(name)
+        path = context.out_dir / f"geometry_{detector.name}.png"
+        plot_detector(detector, path)
+        return StepResult(f"{detector.n_sensors:,} sensors drawn to {path}", (path,))
+
+    return Step(f"sensor layout of {name}", run)
+
+
+def demo_steps() -> list[Step]:
+    """The steps of the main job, in order."""
+    return [presets_step(), geometry_step(DEFAULT_DETECTOR), geometry_step(SPHERE_DETECTOR)]
+
+
+def run_demo(
+    out_dir: str | Path = "demo_output",
+    console: Console | None = None,
+    steps: Sequence[Step] | None = None,
+) -> list[Path]:
+    """Run the demo steps in order, reporting each (with its wall time in s).
+
+    Args:
+        out_dir: folder for the outputs (created if missing).
+        console: where to report (default: a new rich console on stdout).
+        steps: the steps to run (default ``demo_steps()``).
+
+    Returns:
+        The files written, in order.
+    """
+    console = Console() if console is None else console
+    steps = demo_steps() if steps is None else list(steps)
+    context = DemoContext(Path(out_dir), console)
+    written: list[Path] = []
+    start = time.perf_counter()
+    for number, step in enumerate(steps, start=1):
+        label = f"[{number}/{len(steps)}] {step.title}"
+        began = time.perf_counter()
+        with console.status(f"{label} ..."):
+            result = step.run(context)
+        elapsed = time.perf_counter() - began
+        console.print(
+            f"[green]done[/green] {label}: {result.summary} [dim]({elapsed:.1f} s)[/dim]",
+            highlight=False, soft_wrap=True,
+        )
+        written.extend(result.files)
+    console.print(
+        f"\nDemo finished in {time.perf_counter() - start:.1f} s;"
+        f" {len(written)} files in {context.out_dir.resolve()}:",
+        highlight=False, soft_wrap=True,
+    )
+    for path in written:
+        console.print(f"  {path}", highlight=False, soft_wrap=True)
+    return written

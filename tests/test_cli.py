@@ -1,0 +1,118 @@
+"""The real ``photonflow`` command, run as ``python -m photonflow`` in a subprocess."""
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import photonflow
+from photonflow.geometry import PRESETS, preset_table
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def run(*args, cwd):
+    return subprocess.run(
+        [sys.executable, "-m", "photonflow", *map(str, args)],
+        cwd=cwd, capture_output=True, text=True, timeout=300,
+    )
+
+
+def assert_one_line_error(result, *fragments):
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("error: ")
+    assert "Traceback" not in result.stderr
+    for fragment in fragments:
+        assert fragment in lines[0]
+
+
+def assert_png(path):
+    data = path.read_bytes()
+    assert data[:8] == PNG_SIGNATURE and len(data) > 1000
+
+
+def test_version(tmp_path):
+    result = run("--version", cwd=tmp_path)
+    assert result.returncode == 0
+    assert result.stdout.strip() == f"photonflow {photonflow.__version__}"
+
+
+def test_presets_lists_every_preset(tmp_path):
+    result = run("presets", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    for name in PRESETS:
+        assert name in result.stdout
+    sk_row = next(line for line in result.stdout.splitlines() if " SK " in line)
+    assert "11146" in sk_row and "40.3" in sk_row
+
+
+def test_geometry_writes_a_png(tmp_path):
+    result = run("geometry", "TOY_CYLINDER", "--out", "pictures/x.png", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert_png(tmp_path / "pictures" / "x.png")
+    assert [p.name for p in (tmp_path / "pictures").iterdir()] == ["x.png"]  # no leftovers
+    assert "pictures/x.png" in result.stdout
+
+
+def test_geometry_unknown_preset_is_one_line_and_writes_nothing(tmp_path):
+    result = run("geometry", "NOPE", "--out", "x.png", cwd=tmp_path)
+    assert_one_line_error(result, "NOPE", *PRESETS)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_geometry_unknown_picture_format_writes_nothing(tmp_path):
+    result = run("geometry", "TOY_CYLINDER", "--out", "x.txt", cwd=tmp_path)
+    assert_one_line_error(result, "x.txt", ".png")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_info_summarises_an_event_file(tmp_path):
+    from photonflow.geometry import preset_detector
+    from photonflow.io import make_event, write_events
+
+    detector = preset_detector("TOY_CYLINDER")
+    events = [make_event([0, 5, 7], [1.0, 2.5, 1.2], [10.0, 12.5, 30.0]),
+              make_event([199], [3.0], [55.0])]
+    write_events(tmp_path / "run.h5", events, detector, photonflow.default_params(detector))
+    result = run("info", "run.h5", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    lines = {line.split()[0]: line for line in result.stdout.splitlines() if line.strip()}
+    assert "TOY_CYLINDER" in lines["detector"]
+    assert lines["events"].split()[-1] == "2"
+    assert "4 total" in lines["hits"]
+    assert "10 .. 55 ns" in lines["time"]
+
+
+def test_info_on_a_missing_file_exits_2(tmp_path):
+    result = run("info", "missing.h5", cwd=tmp_path)
+    assert_one_line_error(result, "missing.h5")
+
+
+def test_demo_writes_the_geometry_pictures(tmp_path):
+    result = run("demo", "--out-dir", "out", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    for name in ("SK", "JUNO"):
+        assert_png(tmp_path / "out" / f"geometry_{name}.png")
+        assert f"geometry_{name}.png" in result.stdout
+    assert "11146" in result.stdout  # the preset table comes first
+
+
+def test_readme_starts_with_set_up_and_its_preset_table_matches_the_presets():
+    """README: `make demo` and `make test` first; its preset table is what
+    `photonflow presets` prints (no drift)."""
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    first_code = readme.split("```")[1].splitlines()  # the set-up commands come first
+    assert [line.split()[:2] for line in first_code[1:3]] == [["make", "demo"], ["make", "test"]]
+    rows = {}
+    for line in readme.splitlines():
+        cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
+        if len(cells) == 8 and cells[0] in PRESETS:
+            rows[cells[0]] = cells
+    assert list(rows) == list(PRESETS)
+    for row in preset_table():
+        coverage = "-" if math.isnan(row["coverage"]) else f"{100 * row['coverage']:.1f}"
+        expected = [row["name"], row["shape"], row["dimensions"], str(row["sensors"]), coverage,
+                    row["sensor_model"], row["medium"]]
+        assert rows[row["name"]][:7] == expected
