@@ -1,0 +1,192 @@
+"""Calibration light sources: immutable pytrees whose continuous fields are all leaves.
+
+Every source emits ``n_photons`` photons from a point ``position`` (m) at time ``time``
+(ns) with a pulse of width ``pulse_width`` (ns, Gaussian sigma; it spreads arrival
+times, it does not shift their mean). ``emission_density(directions)`` is the angular
+density in photons per steradian per emitted photon, normalised to 1 over the sphere.
+
+Python numbers, lists and numpy arrays given to a constructor are converted to JAX
+arrays of the default float dtype (float32 unless 64-bit mode is on); JAX arrays and
+tracers are kept as given, so the classes work inside ``jit``, ``grad`` and ``vmap``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .errors import ConfigError, format_value
+from .geometry.detector import Detector
+from .pytree import pytree_dataclass
+
+#: Allowed deviation of a direction's length from 1 in ``check_source``.
+DIRECTION_TOLERANCE = 1e-3
+
+
+def _as_leaves(obj) -> None:
+    """Convert plain-Python / numpy field values of a source to JAX float arrays."""
+    dtype = jnp.zeros(()).dtype
+    for field in dataclasses.fields(obj):
+        value = getattr(obj, field.name)
+        if isinstance(value, (int, float, list, tuple, np.ndarray, np.generic)):
+            object.__setattr__(obj, field.name, jnp.asarray(value, dtype=dtype))
+
+
+def _unit(vector):
+    """``vector / |vector|`` along the last axis."""
+    vector = jnp.asarray(vector)
+    return vector / jnp.linalg.norm(vector, axis=-1, keepdims=True)
+
+
+@pytree_dataclass
+class IsotropicSource:
+    """A point source emitting uniformly over 4 pi.
+
+    Attributes:
+        position: (3,) emission point, m.
+        n_photons: number of photons emitted per pulse.
+        time: emission time, ns.
+        pulse_width: Gaussian sigma of the emission time, ns.
+    """
+
+    position: jax.Array
+    n_photons: jax.Array
+    time: jax.Array = 0.0
+    pulse_width: jax.Array = 0.0
+
+    def __post_init__(self):
+        _as_leaves(self)
+
+    def emission_density(self, unit_directions):
+        """Photons per steradian per emitted photon, 1 / (4 pi), for directions (..., 3)."""
+        unit_directions = jnp.asarray(unit_directions)
+        return jnp.full(unit_directions.shape[:-1], 1.0 / (4.0 * math.pi), unit_directions.dtype)
+
+
+@pytree_dataclass
+class LaserSource:
+    """A laser: uniform emission into a cone of half-angle ``opening_angle`` about ``direction``.
+
+    Attributes:
+        position: (3,) emission point, m.
+        direction: (3,) cone axis, unit vector (normalised again where used).
+        n_photons: number of photons emitted per pulse.
+        opening_angle: half-angle alpha of the uniform cone, rad, in (0, pi].
+        time: emission time, ns.
+        pulse_width: Gaussian sigma of the emission time, ns.
+
+    The cone has a hard edge: the density is 1 / (2 pi (1 - cos alpha)) inside and 0
+    outside, so it is differentiable in ``opening_angle`` (through the normalisation)
+    but its derivative with respect to ``direction`` is zero except on the edge.
+    """
+
+    position: jax.Array
+    direction: jax.Array
+    n_photons: jax.Array
+    opening_angle: jax.Array
+    time: jax.Array = 0.0
+    pulse_width: jax.Array = 0.0
+
+    def __post_init__(self):
+        _as_leaves(self)
+
+    def emission_density(self, unit_directions):
+        """Photons per steradian per emitted photon for directions (..., 3): 1/(2 pi (1 - cos
+        alpha)) inside the cone, 0 outside."""
+        cos_angle = jnp.sum(jnp.asarray(unit_directions) * _unit(self.direction), axis=-1)
+        cos_alpha = jnp.cos(self.opening_angle)
+        inside = cos_angle >= cos_alpha
+        return jnp.where(inside, 1.0 / (2.0 * math.pi * (1.0 - cos_alpha)), 0.0)
+
+
+@pytree_dataclass
+class DiffuserSource:
+    """A diffuser ball with a linear anisotropy: density (1 + a cos theta) / (4 pi).
+
+    theta is the angle to ``direction``; ``anisotropy`` a in [-1, 1] (0 = isotropic).
+
+    Attributes:
+        position: (3,) emission point, m.
+        n_photons: number of photons emitted per pulse.
+        direction: (3,) axis of the anisotropy, unit vector (normalised again where used).
+        anisotropy: a in [-1, 1], dimensionless.
+        time: emission time, ns.
+        pulse_width: Gaussian sigma of the emission time, ns.
+    """
+
+    position: jax.Array
+    n_photons: jax.Array
+    direction: jax.Array
+    anisotropy: jax.Array = 0.0
+    time: jax.Array = 0.0
+    pulse_width: jax.Array = 0.0
+
+    def __post_init__(self):
+        _as_leaves(self)
+
+    def emission_density(self, unit_directions):
+        """Photons per steradian per emitted photon, (1 + a cos theta) / (4 pi), for (..., 3)."""
+        cos_angle = jnp.sum(jnp.asarray(unit_directions) * _unit(self.direction), axis=-1)
+        return (1.0 + self.anisotropy * cos_angle) / (4.0 * math.pi)
+
+
+Source = IsotropicSource | LaserSource | DiffuserSource
+
+
+def _field_error(name: str, value, rule: str) -> ConfigError:
+    return ConfigError(f"source.{name} = {format_value(value)}: {rule}")
+
+
+def check_source(source: Source, detector: Detector) -> Source:
+    """Validate a source against a detector; raise a one-line ``ConfigError`` if bad.
+
+    Checks: no NaN field; position (m) inside the detector boundary; n_photons > 0;
+    pulse_width >= 0; a direction of unit length; a laser opening angle in (0, pi];
+    a diffuser anisotropy in [-1, 1]. Returns ``source`` unchanged.
+    """
+    values = {
+        f.name: np.asarray(getattr(source, f.name), dtype=np.float64)
+        for f in dataclasses.fields(source)
+    }
+
+    def show(name):
+        value = values[name]
+        return np.round(value, 4).tolist() if value.ndim else float(value)
+
+    for name, value in values.items():
+        if np.isnan(value).any():
+            raise _field_error(name, show(name), "is NaN")
+    for name, value in values.items():
+        if not np.isfinite(value).all():
+            raise _field_error(name, show(name), "not finite")
+    if values["position"].shape != (3,):
+        raise ConfigError(f"source.position: shape {values['position'].shape}, expected (3,)")
+    distance = float(np.asarray(detector.shape.distance_to_wall(values["position"])))
+    if distance < 0:
+        raise _field_error(
+            "position",
+            show("position"),
+            f"outside the {detector.shape.describe()} by {-distance:.3g} m",
+        )
+    if not values["n_photons"] > 0:
+        raise _field_error("n_photons", show("n_photons"), "must be > 0")
+    if not values["pulse_width"] >= 0:
+        raise _field_error("pulse_width", show("pulse_width"), "must be >= 0 ns")
+    if "direction" in values:
+        direction = values["direction"]
+        if direction.shape != (3,):
+            raise ConfigError(f"source.direction: shape {direction.shape}, expected (3,)")
+        length = float(np.linalg.norm(direction))
+        if abs(length - 1.0) > DIRECTION_TOLERANCE:
+            raise _field_error(
+                "direction", show("direction"), f"not a unit vector (length {length:.4g})"
+            )
+    if "opening_angle" in values and not 0 < values["opening_angle"] <= math.pi:
+        raise _field_error("opening_angle", show("opening_angle"), "must be in (0, pi] rad")
+    if "anisotropy" in values and not -1 <= values["anisotropy"] <= 1:
+        raise _field_error("anisotropy", show("anisotropy"), "must be in [-1, 1]")
+    return source
