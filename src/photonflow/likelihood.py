@@ -1,0 +1,299 @@
+"""Per-sensor Poisson likelihood of an event given a ``Prediction``.
+
+Model for sensor j (all exact, no soft-min):
+
+* light: a Poisson process in time with intensity
+  ``lambda(t) = mu_s f(t) + mu_d / T`` on the readout window ``[t0, t1]`` (``T = t1 - t0``),
+  where ``mu_s`` is the predicted signal p.e., ``f`` the predicted arrival-time density
+  and ``mu_d = dark_rate * T * 1e-9`` the dark-noise p.e. (uniform in the window; a tiny
+  floor ``DARK_FLOOR`` p.e. is added so that everything stays finite with
+  ``dark_rate = 0``). The total mean is ``mu = mu_s + mu_d``;
+* unhit sensor: ``P = exp(-mu)``;
+* hit sensor with charge q and first-hit time t:
+  ``P = (1 - exp(-mu)) P(q | n >= 1) p_first(t)`` with
+  ``P(q | n >= 1) = sum_{n>=1} Poisson(n; mu) Normal(q; n, sqrt(n) spe_width) / (1 - e^-mu)``
+  and ``p_first(t) = lambda(t) exp(-Lambda(t)) / (1 - exp(-mu))``,
+  ``Lambda(t) = mu_s F(t) + mu_d clip((t - t0) / T, 0, 1)``;
+* optional discriminator threshold ``q_thr``: hits with ``q < q_thr`` are not recorded,
+  so an unhit sensor has ``P = exp(-mu) + (1 - exp(-mu)) P(q < q_thr | n >= 1)``.
+
+The charge sum runs over a window of ``n_terms`` consecutive n centred on mu (exact to
+~1e-9 for mu up to ``mu_switch + blend``); above ``mu_switch`` it is blended linearly (a
+mixture of densities, so normalisation is kept) into the Gaussian approximation
+``Normal(q; mu, sqrt(mu (1 + spe_width^2)))`` over ``mu_switch +- blend``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+from jax.scipy.special import gammaln, log_ndtr
+
+from .io.events import Event
+from .params import Params
+from .prediction import Prediction
+
+#: Floor on the dark-noise expectation per sensor and window, p.e.
+DARK_FLOOR = 1e-9
+#: Number of consecutive photoelectron counts n summed in the exact charge model.
+N_TERMS = 128
+#: Centre of the blend from the exact Poisson sum to the Gaussian charge model, p.e.
+MU_SWITCH = 80.0
+#: Half-width of that blend, p.e.
+MU_BLEND = 20.0
+
+_HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
+_LOG2 = math.log(2.0)
+
+
+def log1mexp(mu: jax.Array) -> jax.Array:
+    """``log(1 - exp(-mu))`` for mu > 0, computed stably (-inf at mu = 0)."""
+    small = mu < _LOG2
+    safe_small = jnp.where(small, mu, _LOG2)
+    safe_large = jnp.where(small, 1.0, mu)
+    return jnp.where(
+        small, jnp.log(-jnp.expm1(-safe_small)), jnp.log1p(-jnp.exp(-safe_large))
+    )
+
+
+def _charge_mixture(
+    mu: jax.Array,
+    spe_width: jax.Array,
+    poisson_kernel: Callable[[jax.Array, jax.Array], jax.Array],
+    gauss_kernel: Callable[[jax.Array, jax.Array], jax.Array],
+    n_terms: int,
+    mu_switch: float,
+    blend: float,
+) -> jax.Array:
+    """Log of E[kernel(n) | n >= 1] for n ~ Poisson(mu), blended into a Gaussian kernel.
+
+    ``poisson_kernel(n, sigma_n)`` and ``gauss_kernel(mean, sd)`` return log values.
+    """
+    tiny = jnp.finfo(mu.dtype).tiny
+    lo, hi = mu_switch - blend, mu_switch + blend
+    s = jnp.clip((mu - lo) / (hi - lo), 0.0, 1.0)
+    s = s * s * (3.0 - 2.0 * s)  # smoothstep: C1 blend
+    poisson_only = mu <= lo
+    gauss_only = mu >= hi
+
+    # Exact Poisson sum over n_lo .. n_lo + n_terms - 1 (double-where: safe mu).
+    mu_p = jnp.where(gauss_only, mu_switch, jnp.maximum(mu, tiny))
+    n_lo = jnp.maximum(1.0, jnp.floor(mu_p) - (n_terms // 2 - 1))
+    n = n_lo[..., None] + jnp.arange(n_terms, dtype=mu.dtype)
+    sigma_n = jnp.sqrt(n) * spe_width[..., None]
+    log_weight = (n - 1.0) * jnp.log(mu_p)[..., None] - gammaln(n + 1.0)
+    log_norm = jnp.log(mu_p) - mu_p - log1mexp(mu_p)  # log(mu e^-mu / (1 - e^-mu))
+    log_poisson = jax.nn.logsumexp(log_weight + poisson_kernel(n, sigma_n), axis=-1) + log_norm
+
+    # Gaussian approximation (double-where: safe mu).
+    mu_g = jnp.where(poisson_only, mu_switch, mu)
+    log_gauss = gauss_kernel(mu_g, jnp.sqrt(mu_g * (1.0 + spe_width * spe_width)))
+
+    s_mid = jnp.where(poisson_only | gauss_only, 0.5, s)
+    mixed = jnp.logaddexp(jnp.log1p(-s_mid) + log_poisson, jnp.log(s_mid) + log_gauss)
+    return jnp.where(poisson_only, log_poisson, jnp.where(gauss_only, log_gauss, mixed))
+
+
+def _normal_logpdf(x: jax.Array, mean: jax.Array, sd: jax.Array) -> jax.Array:
+    z = (x - mean) / sd
+    return -0.5 * z * z - jnp.log(sd) - _HALF_LOG_2PI
+
+
+def charge_logpdf(
+    q: jax.Array,
+    mu: jax.Array,
+    spe_width: jax.Array,
+    *,
+    n_terms: int = N_TERMS,
+    mu_switch: float = MU_SWITCH,
+    blend: float = MU_BLEND,
+) -> jax.Array:
+    """Log density of the charge of a hit sensor, ``log P(q | mu, n >= 1)``, log(1/p.e.).
+
+    Args:
+        q: charge, p.e. (any shape broadcasting with ``mu``).
+        mu: expected number of photoelectrons (> 0), p.e.
+        spe_width: single-p.e. charge width sigma / mean, p.e. (scalar or broadcastable).
+        n_terms: number of consecutive n summed in the exact branch (static).
+        mu_switch: centre of the blend into the Gaussian approximation, p.e. (static).
+        blend: half-width of the blend, p.e. (static).
+    """
+    q, mu = jnp.broadcast_arrays(jnp.asarray(q), jnp.asarray(mu))
+    width = jnp.broadcast_to(jnp.asarray(spe_width, dtype=mu.dtype), mu.shape)
+    q = q.astype(mu.dtype)
+    return _charge_mixture(
+        mu,
+        width,
+        lambda n, sigma_n: _normal_logpdf(q[..., None], n, sigma_n),
+        lambda mean, sd: _normal_logpdf(q, mean, sd),
+        n_terms,
+        mu_switch,
+        blend,
+    )
+
+
+def charge_logcdf(
+    q: jax.Array,
+    mu: jax.Array,
+    spe_width: jax.Array,
+    *,
+    n_terms: int = N_TERMS,
+    mu_switch: float = MU_SWITCH,
+    blend: float = MU_BLEND,
+) -> jax.Array:
+    """``log P(charge < q | mu, n >= 1)`` (the cumulative of ``charge_logpdf``).
+
+    Args:
+        q: charge, p.e.; mu: expected p.e. (> 0); spe_width: sigma / mean, p.e.
+        n_terms, mu_switch, blend: as in ``charge_logpdf`` (static).
+    """
+    q, mu = jnp.broadcast_arrays(jnp.asarray(q), jnp.asarray(mu))
+    width = jnp.broadcast_to(jnp.asarray(spe_width, dtype=mu.dtype), mu.shape)
+    q = q.astype(mu.dtype)
+    return _charge_mixture(
+        mu,
+        width,
+        lambda n, sigma_n: log_ndtr((q[..., None] - n) / sigma_n),
+        lambda mean, sd: log_ndtr((q - mean) / sd),
+        n_terms,
+        mu_switch,
+        blend,
+    )
+
+
+def _log_intensity_and_integral(
+    prediction: Prediction, t: jax.Array, mu_dark: jax.Array, window: tuple[float, float]
+) -> tuple[jax.Array, jax.Array]:
+    """log lambda(t) (log 1/ns) and Lambda(t) (p.e.) of signal plus dark noise."""
+    t0, t1 = window
+    length = t1 - t0
+    mu_s = prediction.charge
+    dtype = mu_s.dtype
+    tiny = jnp.finfo(dtype).tiny
+    t = jnp.asarray(t, dtype=dtype)
+    inside = (t >= t0) & (t <= t1)
+    log_f = prediction.time_logpdf(t)
+    log_dark = jnp.where(inside, jnp.log(mu_dark / length), -jnp.inf)
+    # Shifted sum mu_s e^{log_f} + e^{log_dark}, exact gradients also at mu_s = 0.
+    shift = jnp.maximum(log_f + jnp.log(jnp.maximum(mu_s, tiny)), log_dark)
+    shift = jax.lax.stop_gradient(shift)
+    total = mu_s * jnp.exp(log_f - shift) + jnp.exp(log_dark - shift)
+    log_lambda = shift + jnp.log(jnp.maximum(total, tiny))
+    fraction = jnp.clip((t - t0) / length, 0.0, 1.0)
+    big_lambda = mu_s * prediction.time_cdf(t) + mu_dark * fraction
+    return log_lambda, big_lambda
+
+
+def dark_expectation(params: Params, window: tuple[float, float]) -> jax.Array:
+    """Dark-noise p.e. per sensor in the readout window, ``dark_rate * T * 1e-9 + DARK_FLOOR``.
+
+    Args:
+        params: detector parameters (``dark_rate`` in Hz).
+        window: readout window (t0, t1), ns.
+    """
+    t0, t1 = window
+    return params.dark_rate * ((t1 - t0) * 1e-9) + DARK_FLOOR
+
+
+def first_hit_logpdf(
+    prediction: Prediction, t: jax.Array, mu_dark: jax.Array, window: tuple[float, float]
+) -> jax.Array:
+    """Log density of the first-hit time given at least one hit, log(1/ns).
+
+    ``p_first(t) = lambda(t) exp(-Lambda(t)) / (1 - exp(-mu))`` with
+    ``lambda(t) = mu_s f(t) + mu_d / T`` inside the window (``mu_s f(t)`` outside),
+    ``Lambda(t) = mu_s F(t) + mu_d clip((t - t0) / T, 0, 1)`` and ``mu = mu_s + mu_d``.
+
+    Args:
+        prediction: signal prediction (``charge`` mu_s in p.e., time mixture in ns).
+        t: (N,) first-hit time per sensor, ns.
+        mu_dark: dark-noise p.e. per sensor in the window (> 0; scalar or (N,)).
+        window: readout window (t0, t1), ns.
+    """
+    log_lambda, big_lambda = _log_intensity_and_integral(prediction, t, mu_dark, window)
+    return log_lambda - big_lambda - log1mexp(prediction.charge + mu_dark)
+
+
+def _dense_hits(event: Event, n: int, dtype) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Scatter sparse hits to (N,) hit mask, summed charge and earliest time."""
+    ids = jnp.asarray(event.sensor_ids, dtype=jnp.int32)
+    charge = jnp.asarray(event.charge).astype(dtype)
+    time = jnp.asarray(event.time).astype(dtype)
+    hit = jnp.zeros(n, dtype=bool).at[ids].set(True)
+    q = jnp.zeros(n, dtype=dtype).at[ids].add(charge)
+    t = jnp.full(n, jnp.inf, dtype=dtype).at[ids].min(time)
+    return hit, q, jnp.where(hit, t, 0.0)
+
+
+def sensor_nll(
+    prediction: Prediction,
+    event: Event,
+    params: Params,
+    *,
+    window: tuple[float, float],
+    charge_threshold: float | None = None,
+    use_time: bool = True,
+) -> jax.Array:
+    """Per-sensor negative log-likelihood terms of an event (see the module docstring).
+
+    Args:
+        prediction: expected signal p.e. per sensor and arrival-time mixture (ns).
+        event: recorded hits; several hits on one sensor are merged (charges summed,
+            earliest time kept). Sensor ids must lie in [0, N).
+        params: detector parameters (``dark_rate`` Hz and ``spe_width`` p.e. are used).
+        window: readout window (t0, t1), ns (static Python floats).
+        charge_threshold: discriminator threshold, p.e. (None: every hit is recorded).
+            Hits below it are taken as not recorded, which the unhit term accounts for.
+        use_time: include the first-hit time density (False: charge only).
+
+    Returns:
+        (N,) ``-log P`` per sensor (dimensionless for unhit sensors; densities in
+        1/p.e. and, with ``use_time``, 1/ns for hit sensors). Differentiable in every
+        field of ``prediction`` and ``params``; works under ``jit``.
+    """
+    mu_s = prediction.charge
+    n = mu_s.shape[0]
+    dtype = mu_s.dtype
+    hit, q, t = _dense_hits(event, n, dtype)
+    mu_dark = dark_expectation(params, window).astype(dtype)
+    mu = mu_s + mu_dark
+    width = jnp.asarray(params.spe_width, dtype=dtype)
+
+    log_hit = log1mexp(mu)
+    log_hit = log_hit + charge_logpdf(q, mu, width)
+    if use_time:
+        log_hit = log_hit + first_hit_logpdf(prediction, t, mu_dark, window)
+    if charge_threshold is None:
+        log_unhit = -mu
+    else:
+        below = charge_logcdf(jnp.full(n, charge_threshold, dtype=dtype), mu, width)
+        log_unhit = jnp.logaddexp(-mu, log1mexp(mu) + below)
+    return -jnp.where(hit, log_hit, log_unhit)
+
+
+def nll(
+    prediction: Prediction,
+    event: Event,
+    params: Params,
+    *,
+    window: tuple[float, float],
+    charge_threshold: float | None = None,
+    use_time: bool = True,
+) -> jax.Array:
+    """Total negative log-likelihood of an event: the sum of ``sensor_nll`` (scalar).
+
+    Arguments as in ``sensor_nll`` (window in ns, threshold in p.e.).
+    """
+    return jnp.sum(
+        sensor_nll(
+            prediction,
+            event,
+            params,
+            window=window,
+            charge_threshold=charge_threshold,
+            use_time=use_time,
+        )
+    )

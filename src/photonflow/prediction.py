@@ -1,0 +1,96 @@
+"""``Prediction``: expected light per sensor, the input of the likelihood.
+
+For each of N sensors it holds the expected number of signal photoelectrons and the
+arrival-time density of that light as a K-component Gaussian mixture (the sensor's
+transit-time spread and time offset already folded in by whoever builds it). Dark
+noise is not included; the likelihood adds it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+from jax.scipy.special import ndtr
+
+from .pytree import pytree_dataclass
+
+_HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
+
+
+@pytree_dataclass
+class Prediction:
+    """Expected signal per sensor (every field a JAX array leaf).
+
+    Attributes:
+        charge: (N,) expected number of signal photoelectrons per sensor, p.e.
+            (no dark noise).
+        time_weight: (N, K) mixture weights of the arrival-time density (rows sum to 1).
+        time_mean: (N, K) component means, ns.
+        time_sigma: (N, K) component standard deviations (> 0), ns.
+    """
+
+    charge: jax.Array
+    time_weight: jax.Array
+    time_mean: jax.Array
+    time_sigma: jax.Array
+
+    @property
+    def n_sensors(self) -> int:
+        """Number of sensors N."""
+        return int(self.charge.shape[0])
+
+    @classmethod
+    def from_components(cls, charge, weights, means, sigmas) -> Prediction:
+        """Build from array-likes, broadcasting the mixture to shape (N, K).
+
+        Args:
+            charge: (N,) expected signal p.e. per sensor.
+            weights: (N, K) or (K,) non-negative mixture weights; each row is divided by
+                its sum (so they need not be normalised).
+            means: (N, K) or (K,) component means, ns.
+            sigmas: (N, K) or (K,) component standard deviations, ns.
+        """
+        charge = jnp.asarray(charge)
+        n = charge.shape[0]
+        floating = jnp.issubdtype(charge.dtype, jnp.floating)
+        dtype = charge.dtype if floating else jnp.zeros(()).dtype
+        charge = charge.astype(dtype)
+        weights, means, sigmas = (jnp.asarray(x, dtype=dtype) for x in (weights, means, sigmas))
+        k = max(jnp.shape(x)[-1] for x in (weights, means, sigmas))
+        weights, means, sigmas = (jnp.broadcast_to(x, (n, k)) for x in (weights, means, sigmas))
+        weights = weights / jnp.sum(weights, axis=1, keepdims=True)
+        return cls(charge=charge, time_weight=weights, time_mean=means, time_sigma=sigmas)
+
+    def _z(self, t: jax.Array) -> jax.Array:
+        t = jnp.asarray(t, dtype=self.time_mean.dtype)
+        return (t[:, None] - self.time_mean) / self.time_sigma
+
+    def time_logpdf(self, t: jax.Array) -> jax.Array:
+        """Log of the arrival-time density at one time per sensor.
+
+        Args:
+            t: (N,) times, ns.
+
+        Returns:
+            (N,) log f_j(t_j), log(1/ns). Finite (a large negative number) far in the
+            tails; computed with a max-shifted log-sum-exp so weights of exactly zero
+            keep finite gradients.
+        """
+        z = self._z(t)
+        log_component = -0.5 * z * z - jnp.log(self.time_sigma) - _HALF_LOG_2PI
+        w = self.time_weight
+        masked = jnp.where(w > 0, log_component, -jnp.inf)
+        shift = jax.lax.stop_gradient(jnp.max(masked, axis=1, keepdims=True))
+        shift = jnp.where(jnp.isfinite(shift), shift, 0.0)
+        total = jnp.sum(w * jnp.exp(log_component - shift), axis=1)
+        return shift[:, 0] + jnp.log(total)
+
+    def time_pdf(self, t: jax.Array) -> jax.Array:
+        """Arrival-time density f_j(t_j), 1/ns, for t of shape (N,) in ns."""
+        return jnp.exp(self.time_logpdf(t))
+
+    def time_cdf(self, t: jax.Array) -> jax.Array:
+        """Cumulative arrival-time distribution F_j(t_j) in [0, 1], for t of shape (N,) ns."""
+        return jnp.sum(self.time_weight * ndtr(self._z(t)), axis=1)
