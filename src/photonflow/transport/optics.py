@@ -1,0 +1,143 @@
+"""Optical processes shared by the expected and the sampled transport modes.
+
+One description of the physics, used by both modes so that they agree by construction:
+
+- bulk: absorption, Rayleigh scattering with the phase function 1 + a cos^2(theta)
+  (a from the medium, water 0.835) and optional Mie scattering (Henyey-Greenstein, g);
+- wall: a photon reaching the wall is reflected with probability
+  ``wall_reflectivity``; a reflection is specular with probability
+  ``wall_specular_fraction`` and Lambertian (cosine law) otherwise; the rest is absorbed;
+- sensor: a photon reaching a sensor's front face is reflected specularly off the
+  glass with probability ``sensor_reflectivity``, detected with probability
+  QE x efficiency_j x acceptance(incidence), and absorbed otherwise (QE x acceptance
+  is the detection probability of a photon arriving on the sensor, so direct light by
+  quadrature uses the same factor).
+
+Samplers take uniform random numbers explicitly (reparameterised), so the expected mode
+can fix them and stay smooth in the parameters. Angles in rad, lengths in m.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax.numpy as jnp
+
+from ..params import Params
+
+#: Speed of light in vacuum, m/ns.
+SPEED_OF_LIGHT = 0.299792458
+#: Phase-function anisotropy a of Rayleigh scattering in water: (1 - d)/(1 + d) for
+#: depolarisation d = 0.09 (Morel 1974; physics.md section 1).
+WATER_RAYLEIGH_ANISOTROPY = 0.835
+
+
+@dataclasses.dataclass(frozen=True)
+class TransportConfig:
+    """Static settings of light transport (hashable; changing them recompiles).
+
+    Attributes:
+        n_bounces: scattering/reflection vertices followed after emission (expected
+            mode) or the cap on interactions per photon (sampled mode); photons still
+            alive at the cap are counted as ``lost``.
+        n_rays: rays per source for the indirect light of the expected mode.
+        rayleigh_anisotropy: a in the Rayleigh phase function 1 + a cos^2.
+        window: readout window (start, end) in ns relative to the source time.
+        charge_threshold: hits below this charge (p.e.) are not recorded.
+        batch_size: photons processed at once in sampled mode (bounds memory).
+    """
+
+    n_bounces: int = 2
+    n_rays: int = 4096
+    rayleigh_anisotropy: float = WATER_RAYLEIGH_ANISOTROPY
+    window: tuple[float, float] = (-100.0, 900.0)
+    charge_threshold: float = 0.0
+    batch_size: int = 1 << 17
+
+
+def interaction_rates(params: Params):
+    """Bulk rates (1/m): (absorption, Rayleigh, Mie, total). ``inf`` lengths give 0."""
+    absorption = 1.0 / params.absorption_length
+    rayleigh = 1.0 / params.scattering_length
+    mie = 1.0 / params.mie_length
+    return absorption, rayleigh, mie, absorption + rayleigh + mie
+
+
+def rayleigh_density(cos_theta, anisotropy):
+    """Rayleigh phase function per steradian: (1 + a cos^2) / (4 pi (1 + a / 3))."""
+    return (1.0 + anisotropy * cos_theta**2) / (4.0 * math.pi * (1.0 + anisotropy / 3.0))
+
+
+def sample_rayleigh_cos(u, anisotropy, iterations: int = 12):
+    """cos(theta) of Rayleigh scattering from a uniform u in (0, 1) (inverse CDF).
+
+    The CDF (mu + 1 + a (mu^3 + 1) / 3) / (2 (1 + a / 3)) is inverted by Newton steps
+    from mu = 2u - 1 (the CDF is monotonic; 12 steps reach float64 precision for
+    a <= 1); differentiable in u and a.
+    """
+    target = 2.0 * (1.0 + anisotropy / 3.0) * u - 1.0 - anisotropy / 3.0  # g(mu) = target
+    mu = 2.0 * u - 1.0
+    for _ in range(iterations):
+        value = mu + anisotropy * mu**3 / 3.0 - target
+        slope = 1.0 + anisotropy * mu**2
+        mu = jnp.clip(mu - value / slope, -1.0, 1.0)
+    return mu
+
+
+def henyey_greenstein_density(cos_theta, g):
+    """Henyey-Greenstein phase function per steradian with asymmetry g in (-1, 1)."""
+    denominator = (1.0 + g * g - 2.0 * g * cos_theta) ** 1.5
+    return (1.0 - g * g) / (4.0 * math.pi * denominator)
+
+
+def sample_henyey_greenstein_cos(u, g):
+    """cos(theta) of Henyey-Greenstein scattering from a uniform u (closed-form inverse)."""
+    small = jnp.abs(g) < 1e-4
+    safe_g = jnp.where(small, 1e-4, g)
+    ratio = (1.0 - safe_g * safe_g) / (1.0 - safe_g + 2.0 * safe_g * u)
+    mu = (1.0 + safe_g * safe_g - ratio * ratio) / (2.0 * safe_g)
+    return jnp.clip(jnp.where(small, 2.0 * u - 1.0, mu), -1.0, 1.0)
+
+
+def orthonormal_basis(direction):
+    """Two unit vectors (..., 3) perpendicular to ``direction`` and to each other."""
+    helper = jnp.where(
+        (jnp.abs(direction[..., 2]) < 0.9)[..., None],
+        jnp.array([0.0, 0.0, 1.0], direction.dtype),
+        jnp.array([1.0, 0.0, 0.0], direction.dtype),
+    )
+    e1 = jnp.cross(direction, helper)
+    e1 = e1 / jnp.linalg.norm(e1, axis=-1, keepdims=True)
+    return e1, jnp.cross(direction, e1)
+
+
+def deflect(direction, cos_theta, phi):
+    """Turn unit ``direction`` by polar angle acos(cos_theta) at azimuth ``phi`` (rad)."""
+    e1, e2 = orthonormal_basis(direction)
+    sin_theta = jnp.sqrt(jnp.clip(1.0 - cos_theta**2, 0.0, 1.0))
+    return (
+        cos_theta[..., None] * direction
+        + (sin_theta * jnp.cos(phi))[..., None] * e1
+        + (sin_theta * jnp.sin(phi))[..., None] * e2
+    )
+
+
+def lambertian_direction(normal, u1, u2):
+    """A cosine-law direction about the (inward) ``normal`` from uniforms u1, u2."""
+    return deflect(normal, jnp.sqrt(u1), 2.0 * math.pi * u2)
+
+
+def lambertian_density(cos_out):
+    """Radiance of a Lambertian reflector per steradian: cos / pi (0 behind the wall)."""
+    return jnp.maximum(cos_out, 0.0) / math.pi
+
+
+def specular_direction(direction, normal):
+    """Mirror ``direction`` about the plane with unit ``normal``."""
+    return direction - 2.0 * jnp.sum(direction * normal, axis=-1, keepdims=True) * normal
+
+
+def travel_time(distance, params: Params):
+    """Time (ns) for light to travel ``distance`` (m) at the group velocity c / n_g."""
+    return distance * params.group_index / SPEED_OF_LIGHT
