@@ -53,9 +53,9 @@ def build_sensor_grid(detector: Detector, cell_size: float | None = None) -> Sen
     """Build the lookup grid of a walled detector (numpy; done once per detector).
 
     ``cell_size`` (m) defaults to the largest of the sensor diameter, the median
-    distance between neighbouring sensors and the margin below. Sensor j is listed in every cell whose
-    centre lies within r_j + margin + half the cell diagonal of its centre, where the
-    margin grows with how far sensors stand off the wall.
+    distance between neighbouring sensors and the margin below. Sensor j is listed in
+    every cell whose centre lies within r_j + margin + half the cell diagonal of its
+    centre, where the margin grows with how far sensors stand off the wall.
     """
     from scipy.spatial import cKDTree
 
