@@ -129,10 +129,21 @@ def _disc_ellipses(projected: SensorMap, radius: np.ndarray):
 
 def _plot_wall(detector: Detector, projected: SensorMap, values, label: str, cmap: str) -> Figure:
     x0, x1, y0, y1 = projected.bounds
-    margin = 0.03 * max(x1 - x0, y1 - y0)
     extra = 1.4 if values is not None else 0.4
     figure = Figure(figsize=_figure_size(x1 - x0, y1 - y0, extra), layout="constrained")
-    ax = figure.add_subplot()
+    draw_wall(figure, figure.add_subplot(), detector, projected, values, label, cmap)
+    return figure
+
+
+def draw_wall(figure, ax, detector: Detector, projected: SensorMap, values, label: str,
+              cmap: str = "viridis", norm=None):
+    """Draw the wall map with every sensor (coloured by ``values`` if given) on ``ax``.
+
+    Returns the sensor collection (gid "sensors"). ``norm`` is an optional matplotlib
+    normalisation of ``values`` (e.g. ``LogNorm`` for charges).
+    """
+    x0, x1, y0, y1 = projected.bounds
+    margin = 0.03 * max(x1 - x0, y1 - y0)
     for region in projected.regions:
         ax.add_patch(_region_patch(region))
     widths, heights, angles = _disc_ellipses(
@@ -145,6 +156,8 @@ def _plot_wall(detector: Detector, projected: SensorMap, values, label: str, cma
     )
     sensors.set_gid("sensors")
     _colour_sensors(sensors, detector, values, cmap)
+    if norm is not None:
+        sensors.set_norm(norm)
     ax.add_collection(sensors, autolim=False)
     if projected.regions and projected.regions[0].name == "sphere":
         _draw_graticule(ax, projected.regions[0].half_height / math.sqrt(2.0))
@@ -156,7 +169,7 @@ def _plot_wall(detector: Detector, projected: SensorMap, values, label: str, cma
     ax.set_xlabel(projected.x_label)
     ax.set_ylabel(projected.y_label)
     _legend_or_colourbar(figure, ax, sensors, detector, values, label)
-    return figure
+    return sensors
 
 
 def _label_regions(ax, regions: tuple[Region, ...]) -> None:

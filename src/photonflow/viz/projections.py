@@ -111,9 +111,18 @@ class SensorMap:
 
 def sensor_map(detector: Detector) -> SensorMap:
     """Map coordinates (m) of every sensor of ``detector``, by shape (see module doc)."""
-    positions = np.asarray(detector.sensor_positions, dtype=np.float64)
-    normals = np.asarray(detector.sensor_normals, dtype=np.float64)
-    shape = detector.shape
+    return wall_map(detector.shape, detector.sensor_positions, detector.sensor_normals)
+
+
+def wall_map(shape, positions, normals=None) -> SensorMap:
+    """Map coordinates (m) of points (M, 3) on or near the wall of ``shape``.
+
+    ``normals`` (M, 3), where given, decide which face an off-wall point belongs to
+    (as for the PMTs of a multi-PMT module); otherwise the nearest face is used.
+    """
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
     if isinstance(shape, Cylinder):
         return cylinder_map(shape, positions, normals)
     if isinstance(shape, Sphere):
