@@ -145,6 +145,100 @@ def info(
     print(format_summary(summarize_events(path)))
 
 
+def parse_vector(text: str, option: str) -> tuple[float, float, float]:
+    """Three comma-separated numbers ("x,y,z"); a one-line ``ConfigError`` otherwise."""
+    from .errors import ConfigError
+
+    parts = [part.strip() for part in text.split(",")]
+    try:
+        values = tuple(float(part) for part in parts)
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise ConfigError(f"{option} = {text!r}: expected three comma-separated numbers")
+    return values
+
+
+@command
+def simulate(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Event file to write (HDF5).")],
+    detector: Annotated[str, typer.Option(
+        "--detector", "-d", help="Preset name or configuration file.")] = "SK",
+    source: Annotated[str, typer.Option(
+        "--source", help="isotropic, laser or diffuser.")] = "isotropic",
+    position: Annotated[str, typer.Option(help="Source position x,y,z in m.")] = "0,0,0",
+    direction: Annotated[str | None, typer.Option(
+        help="Laser/diffuser axis x,y,z (normalised).")] = None,
+    opening_angle: Annotated[float | None, typer.Option(
+        "--opening-angle", help="Laser cone half-angle, rad.")] = None,
+    anisotropy: Annotated[float, typer.Option(help="Diffuser anisotropy a in [-1, 1].")] = 0.0,
+    photons: Annotated[float, typer.Option(help="Photons per pulse.")] = 1e6,
+    pulse_width: Annotated[float, typer.Option(
+        "--pulse-width", help="Source pulse width (Gaussian sigma), ns.")] = 0.0,
+    events: Annotated[int, typer.Option(help="Number of events (pulses).")] = 1,
+    seed: Annotated[int, typer.Option(help="Random seed (same seed, same events).")] = 0,
+    bounces: Annotated[int, typer.Option(
+        help="Scatterings/reflections followed per photon.")] = 2,
+    mode: Annotated[str, typer.Option(
+        help="create (refuse to overwrite), recreate or append.")] = "create",
+) -> None:
+    """Simulate calibration-source events photon by photon and write them to a file."""
+    from .config import load_setup
+    from .errors import ConfigError
+    from .io import write_events
+    from .params import validate_params
+    from .sources import check_source, make_source
+    from .transport.optics import TransportConfig
+    from .transport.sampled import sample_events
+
+    if events < 1:
+        raise ConfigError(f"--events = {events}: must be >= 1")
+    if bounces < 0:
+        raise ConfigError(f"--bounces = {bounces}: must be >= 0")
+    setup = load_setup(detector)
+    light = make_source(
+        source, parse_vector(position, "--position"), photons,
+        direction=None if direction is None else parse_vector(direction, "--direction"),
+        opening_angle=opening_angle, anisotropy=anisotropy, pulse_width=pulse_width,
+    )
+    check_source(light, setup.detector)
+    validate_params(setup.params, setup.detector.n_sensors)
+    stream = sample_events(
+        setup.detector, setup.params, light, seed, events,
+        config=TransportConfig(n_bounces=bounces), progress=True,
+    )
+    path = write_events(out, stream, setup.detector, setup.params, mode=mode)
+    console().print(
+        f"wrote {events} events to {path} ({setup.detector.describe()})",
+        highlight=False, soft_wrap=True,
+    )
+
+
+@command
+def display(
+    path: Annotated[Path, typer.Argument(metavar="FILE", help="Event file (HDF5).")],
+    event: Annotated[int, typer.Option("--event", "-e", help="Event index (0-based).")] = 0,
+    out: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="Picture to write; default FILE_event<N>.png.")] = None,
+) -> None:
+    """Draw one event: charge and first-hit time of every sensor on the wall map."""
+    from .errors import EventFileError
+    from .io import read_events
+    from .viz import plot_event
+    from .viz.geometry_plot import check_picture_path
+
+    if out is not None:
+        check_picture_path(out)
+    with read_events(path) as events:
+        if not -len(events) <= event < len(events):
+            held = f"events 0..{len(events) - 1}" if len(events) else "no events"
+            raise EventFileError(f"{path}: --event = {event}: the file holds {held}")
+        record = events[event]
+        target = out if out is not None else path.with_name(f"{path.stem}_event{event}.png")
+        plot_event(events.detector, record, target)
+    console().print(f"wrote {target} ({record.n_hits} hit sensors)", highlight=False)
+
+
 @command
 def demo(
     out_dir: Annotated[Path, typer.Option(

@@ -190,3 +190,57 @@ def check_source(source: Source, detector: Detector) -> Source:
     if "anisotropy" in values and not -1 <= values["anisotropy"] <= 1:
         raise _field_error("anisotropy", show("anisotropy"), "must be in [-1, 1]")
     return source
+
+
+#: Source kinds by name, as used by configuration files and the command line.
+SOURCE_KINDS = {"isotropic": IsotropicSource, "laser": LaserSource, "diffuser": DiffuserSource}
+
+
+def source_kind(source: Source) -> str:
+    """The name of a source's kind ("isotropic", "laser" or "diffuser")."""
+    return next(name for name, cls in SOURCE_KINDS.items() if isinstance(source, cls))
+
+
+def make_source(
+    kind: str,
+    position,
+    n_photons: float,
+    *,
+    direction=None,
+    opening_angle: float | None = None,
+    anisotropy: float = 0.0,
+    time: float = 0.0,
+    pulse_width: float = 0.0,
+) -> Source:
+    """Build a source by kind name; a one-line ``ConfigError`` for a bad combination.
+
+    Args:
+        kind: "isotropic", "laser" (needs ``direction`` and ``opening_angle``, rad) or
+            "diffuser" (``direction`` and ``anisotropy`` in [-1, 1]).
+        position: (3,) m. n_photons: photons per pulse. time, pulse_width: ns.
+        direction: (3,) unit vector (normalised here if its length is off by rounding).
+    """
+    if kind not in SOURCE_KINDS:
+        raise ConfigError(
+            f"source = {format_value(kind)}: must be one of {', '.join(SOURCE_KINDS)}"
+        )
+    common = {
+        "position": position,
+        "n_photons": n_photons,
+        "time": time,
+        "pulse_width": pulse_width,
+    }
+    if kind == "isotropic":
+        return IsotropicSource(**common)
+    if direction is None:
+        raise ConfigError(f"source.direction: required for a {kind} source (a unit vector)")
+    direction = np.asarray(direction, dtype=np.float64)
+    length = float(np.linalg.norm(direction))
+    if not length > 0:
+        raise _field_error("direction", direction.tolist(), "must be a non-zero vector")
+    direction = direction / length
+    if kind == "laser":
+        if opening_angle is None:
+            raise ConfigError("source.opening_angle: required for a laser source (rad)")
+        return LaserSource(direction=direction, opening_angle=opening_angle, **common)
+    return DiffuserSource(direction=direction, anisotropy=anisotropy, **common)

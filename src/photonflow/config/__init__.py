@@ -15,6 +15,7 @@ from .loader import (
     build_params,
     load_config,
     load_detector,
+    load_setup,
     read_config_file,
     validate_config,
 )
@@ -29,6 +30,7 @@ __all__ = [
     "build_params",
     "load_config",
     "load_detector",
+    "load_setup",
     "read_config_file",
     "validate_config",
 ]

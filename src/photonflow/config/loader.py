@@ -300,3 +300,17 @@ def load_detector(name_or_path: str | Path) -> Detector:
             f"{path}: no such file (and not a preset; known presets: {', '.join(PRESETS)})"
         )
     return preset_detector(text)
+
+
+def load_setup(name_or_path: str | Path) -> Config:
+    """Detector, medium and parameters from a preset name or a configuration file.
+
+    A preset gets ``default_params`` in the preset's medium; a configuration file is
+    read with ``load_config``. Errors as ``load_detector`` (one line, known presets
+    listed for an unknown name).
+    """
+    path = Path(name_or_path)
+    if path.is_file() and path.suffix.lower() in CONFIG_SUFFIXES:
+        return load_config(path)
+    detector = load_detector(name_or_path)
+    return load_config({"detector": {"preset": detector.name}})
