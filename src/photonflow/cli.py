@@ -251,6 +251,46 @@ def demo(
     run_demo(out_dir, console())
 
 
+benchmark_app = typer.Typer(help="Timing and memory benchmarks (see BENCHMARKS.md).",
+                            no_args_is_help=True)
+app.add_typer(benchmark_app, name="benchmark")
+
+
+@benchmark_app.command("transport")
+def benchmark_transport_command(
+    detector: Annotated[str, typer.Option("--detector", "-d", help="Preset name.")] = "SK",
+    photons: Annotated[float, typer.Option(help="Photons of the isotropic source.")] = 1e6,
+    repeats: Annotated[int, typer.Option(help="Timed repetitions (median).")] = 5,
+    rays: Annotated[int | None, typer.Option(help="Rays for indirect light.")] = None,
+    bounces: Annotated[int, typer.Option(help="Bounces followed.")] = 2,
+) -> None:
+    """Expected-mode forward and value-and-gradient time, noise, peak memory and
+    sampled-mode photons per second, for an isotropic source at the centre and 2 m
+    from the barrel wall."""
+    from .benchmarking import benchmark_transport, machine_description
+
+    try:
+        rows = benchmark_transport(detector, photons, repeats, rays, bounces)
+    except PhotonflowError as error:
+        raise fail(str(error)) from None
+    table = Table(title=f"transport benchmark: {machine_description()}", title_justify="left")
+    columns = [
+        ("case", "case", "{}"), ("forward s", "forward_s", "{:.3f}"),
+        ("value+grad s", "value_and_grad_s", "{:.3f}"),
+        ("noise median", "noise_median", "{:.2%}"), ("noise p90", "noise_p90", "{:.2%}"),
+        ("sampled photons/s", "sampled_photons_per_s", "{:.3g}"),
+        ("peak RSS MB", "peak_rss_mb", "{:.0f}"),
+        ("compile fwd/grad s", None, None),
+    ]
+    for title, _, _ in columns:
+        table.add_column(title, justify="right")
+    for row in rows:
+        cells = [fmt.format(row[key]) for _, key, fmt in columns if key is not None]
+        cells.append(f"{row['compile_forward_s']:.1f} / {row['compile_grad_s']:.1f}")
+        table.add_row(*cells)
+    console().print(table)
+
+
 def main() -> None:
     """Entry point of the ``photonflow`` console script and ``python -m photonflow``."""
     app(prog_name="photonflow")
