@@ -68,6 +68,9 @@ NUDGE = 5e-6
 #: Smallest batch used for small photon counts (batches are powers of two up to
 #: ``config.batch_size``, so few sizes are ever compiled).
 MIN_BATCH = 1 << 10
+#: After the first step the survivors are followed in chunks this many times smaller
+#: than the batch (most photons end on their first segment).
+COMPACTION = 8
 #: Uniform random numbers drawn per photon per step.
 _N_UNIFORMS = 5
 
@@ -293,13 +296,50 @@ def _transport_batch(key, batch_index, n_active, sensors, grid, params, source, 
         status,
         jnp.full(batch, -1, jnp.int32),
     )
-    step = _step_function(shape, config, sensors, grid, params, loop_key)
-
     def running(state):
         return jnp.any(state[5] == ALIVE) & (state[0] <= config.n_bounces)
 
-    _, _, _, path, _, status, sensor = jax.lax.while_loop(running, step, state)
+    def follow(state, key):
+        step = _step_function(shape, config, sensors, grid, params, key)
+        return jax.lax.while_loop(running, step, state)
+
+    step = _step_function(shape, config, sensors, grid, params, loop_key)
+
+    # Most photons end on their first segment (absorbed, detected or at the wall):
+    # follow the survivors of step 0 in chunks of batch / COMPACTION lanes, so that the
+    # later steps do not spend their time on finished photons.
+    state = step(state)
+    if config.n_bounces > 0:
+        state = _follow_survivors(state, follow, loop_key, batch)
+    _, _, _, path, _, status, sensor = state
     return status, sensor, emit_time + path * params.group_index / SPEED_OF_LIGHT
+
+
+def _follow_survivors(state, follow, key, batch: int):
+    """Run ``follow`` (the transport loop) on the ALIVE lanes of ``state``, gathered into
+    chunks of ``batch // COMPACTION`` lanes, and scatter the results back. Each chunk
+    draws its random numbers from its own key (``fold_in(key, chunk + 1)``), so no two
+    photons share a random stream."""
+    chunk = max(batch // COMPACTION, 1)
+    survivors = jnp.nonzero(state[5] == ALIVE, size=batch, fill_value=batch)[0]
+    n_chunks = (jnp.sum(state[5] == ALIVE) + chunk - 1) // chunk
+    fill = (0.0, 0.0, 0.0, 0, UNUSED, -1)
+
+    def one_chunk(carry):
+        done, state = carry
+        lanes = jax.lax.dynamic_slice(survivors, (done * chunk,), (chunk,))
+        sub = (state[0],) + tuple(
+            jnp.take(x, lanes, axis=0, mode="fill", fill_value=v)
+            for x, v in zip(state[1:], fill, strict=True)
+        )
+        sub = follow(sub, jax.random.fold_in(key, done + 1))
+        merged = tuple(
+            x.at[lanes].set(y, mode="drop") for x, y in zip(state[1:], sub[1:], strict=True)
+        )
+        return done + 1, (state[0],) + merged
+
+    _, state = jax.lax.while_loop(lambda c: c[0] < n_chunks, one_chunk, (jnp.int32(0), state))
+    return state
 
 
 def as_key(key_or_seed):
