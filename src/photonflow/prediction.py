@@ -29,12 +29,16 @@ class Prediction:
         time_weight: (N, K) mixture weights of the arrival-time density (rows sum to 1).
         time_mean: (N, K) component means, ns.
         time_sigma: (N, K) component standard deviations (> 0), ns.
+        residual_weight: scalar, expected number of photons (not p.e.) still alive when
+            the transport stopped at its bounce cap, i.e. light that was not followed
+            (0 for a prediction without truncated transport).
     """
 
     charge: jax.Array
     time_weight: jax.Array
     time_mean: jax.Array
     time_sigma: jax.Array
+    residual_weight: jax.Array = 0.0
 
     @property
     def n_sensors(self) -> int:
@@ -42,7 +46,7 @@ class Prediction:
         return int(self.charge.shape[0])
 
     @classmethod
-    def from_components(cls, charge, weights, means, sigmas) -> Prediction:
+    def from_components(cls, charge, weights, means, sigmas, residual_weight=0.0) -> Prediction:
         """Build from array-likes, broadcasting the mixture to shape (N, K).
 
         Args:
@@ -51,6 +55,7 @@ class Prediction:
                 its sum (so they need not be normalised).
             means: (N, K) or (K,) component means, ns.
             sigmas: (N, K) or (K,) component standard deviations, ns.
+            residual_weight: expected photons left untracked at the bounce cap (scalar).
         """
         charge = jnp.asarray(charge)
         n = charge.shape[0]
@@ -61,7 +66,13 @@ class Prediction:
         k = max(jnp.shape(x)[-1] for x in (weights, means, sigmas))
         weights, means, sigmas = (jnp.broadcast_to(x, (n, k)) for x in (weights, means, sigmas))
         weights = weights / jnp.sum(weights, axis=1, keepdims=True)
-        return cls(charge=charge, time_weight=weights, time_mean=means, time_sigma=sigmas)
+        return cls(
+            charge=charge,
+            time_weight=weights,
+            time_mean=means,
+            time_sigma=sigmas,
+            residual_weight=jnp.asarray(residual_weight, dtype=dtype),
+        )
 
     def _z(self, t: jax.Array) -> jax.Array:
         t = jnp.asarray(t, dtype=self.time_mean.dtype)

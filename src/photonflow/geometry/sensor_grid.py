@@ -100,7 +100,7 @@ def build_sensor_grid(detector: Detector, cell_size: float | None = None) -> Sen
 def grid_candidates(grid: SensorGrid, points):
     """Candidate sensor indices (..., K) (-1 padded) for points (..., 3) in m."""
     cell = jnp.floor((points - grid.origin.astype(points.dtype)) / grid.cell_size)
-    dims = jnp.asarray(grid.dims)
+    dims = jnp.asarray(grid.dims, dtype=jnp.int32)
     cell = jnp.clip(cell.astype(jnp.int32), 0, dims - 1)
     flat = (cell[..., 0] * grid.dims[1] + cell[..., 1]) * grid.dims[2] + cell[..., 2]
     return grid.candidates[flat]

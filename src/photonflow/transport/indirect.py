@@ -1,0 +1,441 @@
+"""Indirect light (scattered and reflected) by weighted rays with fixed random numbers.
+
+The expected p.e. of every path with 1..n_bounces vertices (bulk scatter, wall reflection,
+sensor-glass reflection) is estimated from ``n_rays`` rays whose random numbers are fixed
+by a key (common random numbers), so the estimate is a smooth function of every
+parameter that does not move the rays' geometry, and a pathwise (reparameterised)
+function of those that do. Physics exactly as in ``optics.py``.
+
+A ray starts at the source with weight N / n_rays (expected photons) in a direction drawn
+from the source's emission density. Per segment from the current vertex:
+
+1. trace: distance ``t_wall`` to the wall and the first sensor front face on the way
+   (``first_sensor_hit``); the segment ends at the sensor if one is hit, else at the wall
+   (length ``t_end``);
+2. delta detection: if the vertex the segment starts from was specular (wall-specular or
+   sensor glass), a sensor hit is a detection the next-event estimate cannot see: add
+   weight x exp(-rate_total t_sensor) x QE x eff_j x A(theta) to that sensor (for the
+   order of the previous vertex). The first segment's hits (direct light) are not counted:
+   direct light is done by quadrature;
+3. next vertex with a fixed proposal: with probability 1/2 a bulk scatter at s uniform in
+   [0, t_end] (weight x exp(-rate_total s) t_end / 0.5; the scattering rate enters below),
+   else the end of the segment (weight x exp(-rate_total t_end) / 0.5): the wall, or the
+   sensor glass if a sensor was hit;
+4. next-event estimate (NEE) at the vertex to every sensor j facing it: weight x
+   redirection density toward the sensor (per sr; scatter: rate_rayleigh p_R + rate_mie
+   p_HG, per m; wall: wall_reflectivity (1 - specular fraction) cos_out / pi; sensor glass:
+   0) x Omega_j x QE x eff_j x A(theta_in) x exp(-rate_total d_j), arriving at ray time +
+   d_j n_g / c + offset_j. Omega_j = cos_in 2 pi r^2 / (R (R + d)), R = sqrt(d^2 + r^2):
+   the on-axis disc solid angle tilted by cos_in (far field pi r^2 cos_in / d^2, bounded
+   by 2 pi near the disc);
+5. continue: after a scatter Rayleigh or Mie is chosen with probability 1/2 each and the
+   direction drawn from it, weight x (rate_R p_R + rate_M p_HG) / (p_R / 2 + p_HG / 2)
+   (one-sample mixture importance sampling; the choice never depends on parameters);
+   after a wall vertex specular (proposal 1/2, weight x R_w f_s / 0.5) or Lambertian
+   (weight x R_w (1 - f_s) / 0.5); after the sensor glass specular, weight x R_s.
+
+After the last vertex its outgoing segment is traced once more for its delta detection;
+the expected photons that would undergo a further vertex (scatter or reflection) on it
+are the ``residual_weight``. Every path with <= n_bounces vertices is estimated without
+bias (up to the disc solid angle approximation of the NEE and the acceptance taken at
+the disc centre).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from weakref import WeakKeyDictionary
+
+import jax
+import jax.numpy as jnp
+
+from ..geometry.detector import Detector
+from ..geometry.sensor_grid import SensorGrid, build_sensor_grid, first_sensor_hit
+from ..geometry.shapes import Shape
+from ..params import Params
+from ..pytree import pytree_dataclass
+from ..sources import DiffuserSource, LaserSource
+from .direct import interpolate_acceptance
+from .optics import (
+    TransportConfig,
+    deflect,
+    henyey_greenstein_density,
+    interaction_rates,
+    lambertian_density,
+    lambertian_direction,
+    rayleigh_density,
+    sample_henyey_greenstein_cos,
+    sample_rayleigh_cos,
+    specular_direction,
+    travel_time,
+)
+
+#: Uniform random numbers drawn per ray and vertex.
+_UNIFORMS_PER_VERTEX = 8
+#: Vertex kinds.
+_SCATTER, _WALL, _GLASS = 0, 1, 2
+
+
+@pytree_dataclass
+class IndirectLight:
+    """Indirect light per sensor, split by the order k = 1..n_bounces of its last vertex.
+
+    Attributes:
+        charge: (n_bounces, N) expected p.e. whose last vertex is the k-th.
+        time_mean: (n_bounces, N) charge-weighted mean arrival time, ns (ray time plus
+            travel time plus the sensor's time offset; no transit-time spread or pulse
+            width); the reference time where a sensor gets no light of that order.
+        time_variance: (n_bounces, N) charge-weighted variance of those times, ns^2.
+        residual_weight: scalar, expected photons that would undergo a further vertex
+            after the cap (not followed).
+    """
+
+    charge: jax.Array
+    time_mean: jax.Array
+    time_variance: jax.Array
+    residual_weight: jax.Array
+
+
+def emission_directions(source, u1, u2):
+    """Directions (R, 3) drawn from a source's emission density from uniforms u1, u2 (R,).
+
+    Isotropic: uniform on the sphere; laser: uniform in the cone of half-angle alpha
+    (cos theta = 1 - u1 (1 - cos alpha)); diffuser: cos theta about the axis from the
+    inverse CDF of (1 + a cos theta) / 2. Reparameterised: differentiable in the
+    source's direction, opening angle and anisotropy.
+    """
+    if isinstance(source, LaserSource):
+        axis = source.direction / jnp.linalg.norm(source.direction)
+        cos_theta = 1.0 - u1 * (1.0 - jnp.cos(source.opening_angle))
+    elif isinstance(source, DiffuserSource):
+        axis = source.direction / jnp.linalg.norm(source.direction)
+        a = source.anisotropy
+        # inverse of F(mu) = (mu + 1 + a (mu^2 - 1) / 2) / 2, cancellation-free form
+        root = jnp.sqrt((1.0 - a) ** 2 + 4.0 * a * u1)
+        cos_theta = (a - 2.0 + 4.0 * u1) / (1.0 + root)
+    else:
+        axis = jnp.array([0.0, 0.0, 1.0], dtype=u1.dtype)
+        cos_theta = 1.0 - 2.0 * u1
+    cos_theta = jnp.clip(cos_theta, -1.0, 1.0)
+    axes = jnp.broadcast_to(axis, (u1.shape[0], 3))
+    return deflect(axes, cos_theta, 2.0 * math.pi * u2)
+
+
+def _safe_sqrt(x):
+    """sqrt(max(x, 0)) with a finite (zero) gradient at 0."""
+    positive = x > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
+
+
+def _acceptance_of_cos(table, cos_incidence):
+    """Angular acceptance at incidence angles given by their cosines (finite gradients)."""
+    sin_incidence = _safe_sqrt(1.0 - cos_incidence * cos_incidence)
+    return interpolate_acceptance(table, jnp.arctan2(sin_incidence, cos_incidence))
+
+
+@dataclasses.dataclass(frozen=True)
+class _Sensors:
+    positions: jax.Array
+    normals: jax.Array
+    radius: jax.Array
+
+
+def _trace(shape: Shape, grid, sensors: _Sensors, origins, directions):
+    """Segment ends: (t_end m, sensor index or -1, hit bool, alive bool)."""
+    t_wall = shape.ray_exit(origins, directions)
+    alive = jnp.isfinite(t_wall) & (t_wall > 0)
+    t_wall = jnp.where(alive, t_wall, 0.0)
+    # standard promotion: grid_candidates mixes int32 cells with int64 dims under x64
+    with jax.numpy_dtype_promotion("standard"):
+        index, t_sensor = first_sensor_hit(
+            grid, sensors.positions, sensors.normals, sensors.radius, origins, directions, t_wall
+        )
+    hit = alive & (index >= 0)
+    t_end = jnp.where(hit, t_sensor, t_wall)
+    return t_end, jnp.where(hit, index, 0), hit, alive
+
+
+def _detect_on_segment(params, sensors, weight, time, directions, t_end, index, counts, n):
+    """Scatter-add the detections of rays whose segment ends on a sensor (counts > 0)."""
+    rate_total = interaction_rates(params)[3]
+    cos_in = -jnp.sum(directions * sensors.normals[index], axis=-1)
+    detected = (
+        weight
+        * jnp.exp(-rate_total * t_end)
+        * params.quantum_efficiency
+        * params.efficiency[index]
+        * _acceptance_of_cos(params.angular_acceptance, cos_in)
+    )
+    detected = jnp.where(counts, detected, 0.0)
+    arrival = time + travel_time(t_end, params) + params.time_offset[index]
+    zeros = jnp.zeros(n, dtype=weight.dtype)
+    return (
+        zeros.at[index].add(detected),
+        zeros.at[index].add(detected * arrival),
+        zeros.at[index].add(detected * arrival * arrival),
+    )
+
+
+def _next_event(params, sensors, config, reference, vertex, weight, time, kind, d_in, wall_n):
+    """NEE of one vertex per ray to every sensor: (N,) sums of c, c t, c t^2 (t - reference)."""
+    rate_abs, rate_rayleigh, rate_mie, rate_total = interaction_rates(params)
+    offset = sensors.positions[None, :, :] - vertex[:, None, :]  # (R, N, 3)
+    distance = jnp.sqrt(jnp.sum(offset * offset, axis=-1))
+    unit = offset / distance[..., None]
+    cos_in = -jnp.sum(unit * sensors.normals[None], axis=-1)
+    cos_turn = jnp.sum(unit * d_in[:, None, :], axis=-1)
+    scatter_density = rate_rayleigh * rayleigh_density(
+        cos_turn, config.rayleigh_anisotropy
+    ) + rate_mie * henyey_greenstein_density(cos_turn, params.mie_g)
+    cos_out = jnp.sum(unit * wall_n[:, None, :], axis=-1)
+    wall_density = (
+        params.wall_reflectivity
+        * (1.0 - params.wall_specular_fraction)
+        * lambertian_density(cos_out)
+    )
+    density = jnp.where(
+        (kind == _SCATTER)[:, None],
+        scatter_density,
+        jnp.where((kind == _WALL)[:, None], wall_density, 0.0),
+    )
+    r2 = sensors.radius * sensors.radius
+    hypot = jnp.sqrt(distance * distance + r2)
+    solid_angle = jnp.maximum(cos_in, 0.0) * (2.0 * math.pi) * r2 / (hypot * (hypot + distance))
+    contribution = (
+        weight[:, None]
+        * density
+        * solid_angle
+        * jnp.exp(-rate_total * distance)
+        * _acceptance_of_cos(params.angular_acceptance, jnp.maximum(cos_in, 0.0))
+    )
+    contribution = contribution * (params.quantum_efficiency * params.efficiency)
+    relative = time[:, None] + travel_time(distance, params) + params.time_offset - reference
+    return (
+        jnp.sum(contribution, axis=0),
+        jnp.sum(contribution * relative, axis=0),
+        jnp.sum(contribution * relative * relative, axis=0),
+    )
+
+
+def _residual(params, shape_has_walls, weight, t_end, hit):
+    """Expected photons that would undergo one more vertex on the traced segment."""
+    _, rate_rayleigh, rate_mie, rate_total = interaction_rates(params)
+    x = rate_total * t_end
+    safe_rate = jnp.where(x > 0, rate_total, 1.0)
+    interact_length = jnp.where(x > 0, -jnp.expm1(-x) / safe_rate, t_end)
+    wall = params.wall_reflectivity if shape_has_walls else 0.0
+    reflect = jnp.where(hit, params.sensor_reflectivity, wall)
+    return jnp.sum(weight * ((rate_rayleigh + rate_mie) * interact_length + jnp.exp(-x) * reflect))
+
+
+@functools.partial(jax.jit, static_argnames=("shape", "config"))
+def indirect_light_jit(
+    sensor_positions,
+    sensor_normals,
+    sensor_radius,
+    grid: SensorGrid | None,
+    params: Params,
+    source,
+    reference_time,
+    key,
+    *,
+    shape: Shape,
+    config: TransportConfig,
+) -> IndirectLight:
+    """``indirect_light`` on arrays (positions m, normals, radii m, one float dtype).
+
+    ``reference_time`` (N,) ns is subtracted from arrival times before the moments are
+    accumulated (float32 accuracy; the direct arrival time is a good choice); ``shape``
+    and ``config`` are static. Returns an ``IndirectLight``.
+    """
+    dtype = sensor_positions.dtype
+    n = sensor_positions.shape[0]
+    n_rays = config.n_rays
+    sensors = _Sensors(sensor_positions, sensor_normals, sensor_radius)
+    has_walls = shape.has_walls
+    emit_key, vertex_key = jax.random.split(key)
+    u_emit = jax.random.uniform(emit_key, (2, n_rays), dtype=dtype)
+    directions = emission_directions(source, u_emit[0], u_emit[1])
+    origins = jnp.broadcast_to(source.position, (n_rays, 3))
+    weight = jnp.broadcast_to(source.n_photons / n_rays, (n_rays,)).astype(dtype)
+    time = jnp.broadcast_to(source.time, (n_rays,)).astype(dtype)
+    specular = jnp.zeros(n_rays, dtype=bool)
+    rate_abs, rate_rayleigh, rate_mie, rate_total = interaction_rates(params)
+    anisotropy = config.rayleigh_anisotropy
+    nee = jax.checkpoint(functools.partial(_next_event, params, sensors, config, reference_time))
+
+    def step(carry, order):
+        origins, directions, weight, time, specular = carry
+        u = jax.random.uniform(
+            jax.random.fold_in(vertex_key, order), (_UNIFORMS_PER_VERTEX, n_rays), dtype=dtype
+        )
+        t_end, index, hit, alive = _trace(shape, grid, sensors, origins, directions)
+        weight = jnp.where(alive, weight, 0.0)
+        delta = _detect_on_segment(
+            params,
+            sensors,
+            weight,
+            time - reference_time[index],
+            directions,
+            t_end,
+            index,
+            specular & hit,
+            n,
+        )
+        # next vertex: bulk scatter (proposal 1/2, uniform in [0, t_end]) or segment end
+        scatter = u[0] < 0.5
+        s = jnp.where(scatter, u[1] * t_end, t_end)
+        weight = weight * jnp.exp(-rate_total * s) / 0.5
+        weight = jnp.where(scatter, weight * t_end, weight)
+        vertex = origins + s[:, None] * directions
+        time = time + travel_time(s, params)
+        kind = jnp.where(scatter, _SCATTER, jnp.where(hit, _GLASS, _WALL))
+        wall_normal = shape.inward_normal(vertex) if has_walls else -directions
+        glass_normal = sensor_normals[index]
+        normal = jnp.where((kind == _GLASS)[:, None], glass_normal, wall_normal)
+        if not has_walls:
+            weight = jnp.where(kind == _WALL, 0.0, weight)
+        detected = nee(vertex, weight, time, kind, directions, normal)
+        # continuation
+        rayleigh = u[2] < 0.5
+        cos_theta = jnp.where(
+            rayleigh,
+            sample_rayleigh_cos(u[3], anisotropy),
+            sample_henyey_greenstein_cos(u[3], params.mie_g),
+        )
+        p_rayleigh = rayleigh_density(cos_theta, anisotropy)
+        p_mie = henyey_greenstein_density(cos_theta, params.mie_g)
+        scatter_weight = (rate_rayleigh * p_rayleigh + rate_mie * p_mie) / (
+            0.5 * p_rayleigh + 0.5 * p_mie
+        )
+        scatter_direction = deflect(directions, cos_theta, 2.0 * math.pi * u[4])
+        mirror = u[5] < 0.5
+        reflected = jnp.where(
+            mirror[:, None],
+            specular_direction(directions, normal),
+            lambertian_direction(normal, u[6], u[7]),
+        )
+        wall_weight = (
+            params.wall_reflectivity
+            * jnp.where(mirror, params.wall_specular_fraction, 1.0 - params.wall_specular_fraction)
+            / 0.5
+        )
+        glass_direction = specular_direction(directions, normal)
+        is_scatter = (kind == _SCATTER)[:, None]
+        is_wall = (kind == _WALL)[:, None]
+        directions = jnp.where(
+            is_scatter, scatter_direction, jnp.where(is_wall, reflected, glass_direction)
+        )
+        directions = directions / jnp.linalg.norm(directions, axis=-1, keepdims=True)
+        factor = jnp.where(
+            kind == _SCATTER,
+            scatter_weight,
+            jnp.where(kind == _WALL, wall_weight, params.sensor_reflectivity),
+        )
+        weight = weight * factor
+        specular = (kind == _GLASS) | ((kind == _WALL) & mirror)
+        return (vertex, directions, weight, time, specular), (delta, detected)
+
+    carry = (origins, directions, weight, time, specular)
+    orders = jnp.arange(1, config.n_bounces + 1)
+    carry, (delta, detected) = jax.lax.scan(step, carry, orders)
+    origins, directions, weight, time, specular = carry
+    t_end, index, hit, alive = _trace(shape, grid, sensors, origins, directions)
+    weight = jnp.where(alive, weight, 0.0)
+    last = _detect_on_segment(
+        params,
+        sensors,
+        weight,
+        time - reference_time[index],
+        directions,
+        t_end,
+        index,
+        specular & hit,
+        n,
+    )
+    residual = _residual(params, has_walls, weight, t_end, hit)
+    # delta detections of step k + 1 belong to order k (the vertex the segment starts at)
+    delta = [jnp.concatenate([d[1:], l[None]], axis=0) for d, l in zip(delta, last, strict=True)]
+    total = [a + b for a, b in zip(delta, detected, strict=True)]
+    charge, first, second = total
+    positive = charge > 0
+    safe = jnp.where(positive, charge, 1.0)
+    mean = jnp.where(positive, first / safe, 0.0)
+    variance = jnp.where(positive, jnp.maximum(second / safe - mean * mean, 0.0), 0.0)
+    return IndirectLight(
+        charge=charge,
+        time_mean=mean + reference_time,
+        time_variance=variance,
+        residual_weight=residual,
+    )
+
+
+def indirect_light(
+    detector: Detector,
+    params: Params,
+    source,
+    *,
+    config: TransportConfig | None = None,
+    key=None,
+    grid: SensorGrid | None = None,
+    reference_time=None,
+) -> IndirectLight:
+    """Indirect (scattered and reflected) light per sensor and bounce order.
+
+    Args:
+        detector: sensors (positions m, inward normals, radii m) and boundary.
+        params: detector parameters (lengths m, time offsets ns).
+        source: an ``IsotropicSource``, ``LaserSource`` or ``DiffuserSource`` (position
+            m, time ns).
+        config: static transport settings (``n_rays``, ``n_bounces``, Rayleigh
+            anisotropy; default ``TransportConfig()``).
+        key: ``jax.random`` key fixing the rays' random numbers (default key 0).
+        grid: sensor lookup grid (built from the detector when None and the detector
+            has walls; pass it to avoid rebuilding).
+        reference_time: (N,) ns subtracted from times while accumulating moments
+            (default: straight-line arrival time from the source).
+
+    Returns:
+        ``IndirectLight`` (p.e., ns, ns^2, photons). Differentiable in every field of
+        ``params`` and ``source``; new values never recompile.
+    """
+    dtype = jnp.result_type(params.absorption_length)
+
+    def cast(leaf):
+        return jnp.asarray(leaf, dtype=dtype) + jnp.zeros((), dtype)
+
+    config = TransportConfig() if config is None else config
+    if key is None:
+        key = jax.random.key(0)
+    if grid is None and detector.shape.has_walls:
+        grid = sensor_grid_for(detector)
+    positions = cast(detector.sensor_positions)
+    source = jax.tree.map(cast, source)
+    if reference_time is None:
+        distance = jnp.linalg.norm(positions - source.position, axis=-1)
+        reference_time = source.time + travel_time(distance, params)
+    return indirect_light_jit(
+        positions,
+        cast(detector.sensor_normals),
+        cast(detector.sensor_radius),
+        grid,
+        params,
+        source,
+        cast(reference_time),
+        key,
+        shape=detector.shape,
+        config=config,
+    )
+
+
+def sensor_grid_for(detector: Detector) -> SensorGrid:
+    """The sensor lookup grid of a walled detector, built once per detector object."""
+    if detector not in _GRIDS:
+        _GRIDS[detector] = build_sensor_grid(detector)
+    return _GRIDS[detector]
+
+
+#: Memo of lookup grids per detector object (a pure cache; detectors are immutable).
+_GRIDS: WeakKeyDictionary = WeakKeyDictionary()
