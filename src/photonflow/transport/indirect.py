@@ -12,8 +12,8 @@ from the source's emission density. Per segment from the current vertex:
 1. trace: distance ``t_wall`` to the wall and the first sensor front face on the way
    (``first_sensor_hit``); the segment ends at the sensor if one is hit, else at the wall
    (length ``t_end``);
-2. delta detection: if the vertex the segment starts from was specular (wall-specular or
-   sensor glass), a sensor hit is a detection the next-event estimate cannot see: add
+2. delta detection: if the vertex the segment starts from was a specular wall
+   reflection, a sensor hit is a detection the next-event estimate cannot see: add
    weight x exp(-rate_total t_sensor) x QE x eff_j x A(theta) to that sensor (for the
    order of the previous vertex). The first segment's hits (direct light) are not counted:
    direct light is done by quadrature;
@@ -23,16 +23,18 @@ from the source's emission density. Per segment from the current vertex:
    sensor glass if a sensor was hit;
 4. next-event estimate (NEE) at the vertex to every sensor j facing it: weight x
    redirection density toward the sensor (per sr; scatter: rate_rayleigh p_R + rate_mie
-   p_HG, per m; wall: wall_reflectivity (1 - specular fraction) cos_out / pi; sensor glass:
-   0) x Omega_j x QE x eff_j x A(theta_in) x exp(-rate_total d_j), arriving at ray time +
-   d_j n_g / c + offset_j. Omega_j = cos_in 2 pi r^2 / (R (R + d)), R = sqrt(d^2 + r^2):
-   the on-axis disc solid angle tilted by cos_in (far field pi r^2 cos_in / d^2, bounded
-   by 2 pi near the disc);
+   p_HG, per m; wall: wall_reflectivity (1 - specular fraction) cos_out / pi; sensor
+   glass: sensor_reflectivity x ``dome_reflection_density``) x Omega_j x QE x eff_j x
+   A(theta_in) x exp(-rate_total d_j), arriving at ray time + d_j n_g / c + offset_j.
+   Omega_j = cos_in 2 pi r^2 / (R (R + d)), R = sqrt(d^2 + r^2): the on-axis disc
+   solid angle tilted by cos_in (far field pi r^2 cos_in / d^2, bounded by 2 pi near
+   the disc);
 5. continue: after a scatter Rayleigh or Mie is chosen with probability 1/2 each and the
    direction drawn from it, weight x (rate_R p_R + rate_M p_HG) / (p_R / 2 + p_HG / 2)
    (one-sample mixture importance sampling; the choice never depends on parameters);
    after a wall vertex specular (proposal 1/2, weight x R_w f_s / 0.5) or Lambertian
-   (weight x R_w (1 - f_s) / 0.5); after the sensor glass specular, weight x R_s.
+   (weight x R_w (1 - f_s) / 0.5); after the sensor glass, mirrored about the dome
+   normal where the ray crossed the disc, weight x R_s.
 
 After the last vertex its outgoing segment is traced once more for its delta detection;
 the expected photons that would undergo a further vertex (scatter or reflection) on it
@@ -61,6 +63,8 @@ from .direct import interpolate_acceptance
 from .optics import (
     TransportConfig,
     deflect,
+    dome_normal,
+    dome_reflection_density,
     henyey_greenstein_density,
     interaction_rates,
     lambertian_density,
@@ -195,10 +199,13 @@ def _next_event(params, sensors, config, reference, vertex, weight, time, kind, 
         * (1.0 - params.wall_specular_fraction)
         * lambertian_density(cos_out)
     )
+    glass_density = params.sensor_reflectivity * dome_reflection_density(
+        d_in[:, None, :], unit, wall_n[:, None, :]
+    )
     density = jnp.where(
         (kind == _SCATTER)[:, None],
         scatter_density,
-        jnp.where((kind == _WALL)[:, None], wall_density, 0.0),
+        jnp.where((kind == _WALL)[:, None], wall_density, glass_density),
     )
     r2 = sensors.radius * sensors.radius
     hypot = jnp.sqrt(distance * distance + r2)
@@ -322,7 +329,10 @@ def indirect_light_jit(
             * jnp.where(mirror, params.wall_specular_fraction, 1.0 - params.wall_specular_fraction)
             / 0.5
         )
-        glass_direction = specular_direction(directions, normal)
+        glass_direction = specular_direction(
+            directions,
+            dome_normal(vertex - sensor_positions[index], glass_normal, sensor_radius[index]),
+        )
         is_scatter = (kind == _SCATTER)[:, None]
         is_wall = (kind == _WALL)[:, None]
         directions = jnp.where(
@@ -335,7 +345,7 @@ def indirect_light_jit(
             jnp.where(kind == _WALL, wall_weight, params.sensor_reflectivity),
         )
         weight = weight * factor
-        specular = (kind == _GLASS) | ((kind == _WALL) & mirror)
+        specular = (kind == _WALL) & mirror
         return (vertex, directions, weight, time, specular), (delta, detected)
 
     carry = (origins, directions, weight, time, specular)

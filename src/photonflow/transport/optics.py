@@ -7,11 +7,15 @@ One description of the physics, used by both modes so that they agree by constru
 - wall: a photon reaching the wall is reflected with probability
   ``wall_reflectivity``; a reflection is specular with probability
   ``wall_specular_fraction`` and Lambertian (cosine law) otherwise; the rest is absorbed;
-- sensor: a photon reaching a sensor's front face is reflected specularly off the
-  glass with probability ``sensor_reflectivity``, detected with probability
-  QE x efficiency_j x acceptance(incidence), and absorbed otherwise (QE x acceptance
-  is the detection probability of a photon arriving on the sensor, so direct light by
-  quadrature uses the same factor).
+- sensor: a photon crossing a sensor's disc from the front is detected with
+  probability QE x efficiency_j x acceptance(incidence), reflected with probability
+  ``sensor_reflectivity``, and absorbed otherwise (QE x acceptance is the detection
+  probability of a photon arriving on the sensor, so direct light by quadrature uses
+  the same factor). The reflection is specular off the hemispherical glass dome above
+  the disc: a photon crossing the disc at offset q from its centre is mirrored about
+  the dome's normal there, (q + sqrt(r^2 - |q|^2) n) / r. A convex dome spreads the
+  reflected light over a wide range of directions (``dome_reflection_density``), as
+  the glass of a real PMT does; a flat mirror disc would not.
 
 Samplers take uniform random numbers explicitly (reparameterised), so the expected mode
 can fix them and stay smooth in the parameters. Angles in rad, lengths in m.
@@ -136,6 +140,33 @@ def lambertian_density(cos_out):
 def specular_direction(direction, normal):
     """Mirror ``direction`` about the plane with unit ``normal``."""
     return direction - 2.0 * jnp.sum(direction * normal, axis=-1, keepdims=True) * normal
+
+
+def dome_normal(offset, normal, radius):
+    """Normal of the hemispherical dome over a sensor disc, at in-plane ``offset`` (..., 3)
+    m from the disc centre (normal (..., 3) unit, radius (...,) m)."""
+    in_plane = offset - jnp.sum(offset * normal, axis=-1, keepdims=True) * normal
+    rho2 = jnp.sum(in_plane * in_plane, axis=-1, keepdims=True)
+    r = radius[..., None]
+    height = jnp.sqrt(jnp.maximum(r * r - rho2, 0.0))
+    dome = (in_plane + height * normal) / r
+    return dome / jnp.linalg.norm(dome, axis=-1, keepdims=True)
+
+
+def dome_reflection_density(direction_in, direction_out, normal):
+    """Directions of light reflected off a sensor's dome, per steradian per reflected photon.
+
+    For photons crossing the disc uniformly from ``direction_in`` and mirrored about
+    ``dome_normal``: p(w_out) = (h . n) / (4 pi (w_out . h)), h the unit half vector
+    (w_out - w_in) / |w_out - w_in|, zero where h . n <= 0. It integrates to 1 over the
+    sphere (isotropic at normal incidence, like a mirror ball).
+    """
+    half = direction_out - direction_in
+    norm = jnp.sqrt(jnp.maximum(jnp.sum(half * half, axis=-1), 1e-30))
+    h_n = jnp.sum(half * normal, axis=-1) / norm
+    h_out = jnp.sum(half * direction_out, axis=-1) / norm
+    valid = (h_n > 0) & (h_out > 0)
+    return jnp.where(valid, h_n / (4.0 * math.pi * jnp.where(valid, h_out, 1.0)), 0.0)
 
 
 def travel_time(distance, params: Params):

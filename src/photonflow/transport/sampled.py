@@ -53,6 +53,7 @@ from .optics import (
     SPEED_OF_LIGHT,
     TransportConfig,
     deflect,
+    dome_normal,
     interaction_rates,
     lambertian_direction,
     sample_henyey_greenstein_cos,
@@ -175,15 +176,18 @@ def _bulk_outcome(u_process, u_cos, u_phi, direction, rates, params, anisotropy)
     return absorbed, deflect(direction, cos_theta, 2.0 * math.pi * u_phi)
 
 
-def _sensor_outcome(u, direction, sensor, sensor_normals, params):
-    """(detected, reflected, new direction) of photons arriving on sensor discs."""
-    normal = sensor_normals[sensor]
+def _sensor_outcome(u, direction, point, sensor, sensors, params):
+    """(detected, reflected, new direction) of photons crossing sensor discs at ``point``;
+    reflection is specular off the glass dome over the disc (``optics.dome_normal``)."""
+    positions, normals, radius = sensors
+    normal = normals[sensor]
     cos_incidence = jnp.clip(-jnp.sum(direction * normal, axis=-1), -1.0, 1.0)
     acceptance = interpolate_acceptance(params.angular_acceptance, jnp.arccos(cos_incidence))
     p_detect = params.quantum_efficiency * params.efficiency[sensor] * acceptance
     detected = u < p_detect
     reflected = ~detected & (u < p_detect + params.sensor_reflectivity)
-    return detected, reflected, specular_direction(direction, normal)
+    dome = dome_normal(point - positions[sensor], normal, radius[sensor])
+    return detected, reflected, specular_direction(direction, dome)
 
 
 def _wall_outcome(u_reflect, u_kind, u1, u2, direction, points, shape, params):
@@ -227,7 +231,7 @@ def _step_function(shape, config, sensors, grid, params, key):
             u[1], u[2], u[3], direction, rates, params, config.rayleigh_anisotropy
         )
         detected, sensor_reflected, sensor_dir = _sensor_outcome(
-            u[1], direction, bulk_sensor, normals, params
+            u[1], direction, point, bulk_sensor, sensors, params
         )
         wall_reflected, wall_dir = _wall_outcome(
             u[1], u[2], u[3], u[4], direction, point, shape, params
