@@ -49,20 +49,24 @@ class SensorGrid:
         return int(self.candidates.shape[1])
 
 
-def build_sensor_grid(detector: Detector, cell_size: float | None = None) -> SensorGrid:
+def build_sensor_grid(
+    detector: Detector, cell_size: float | None = None, margin: float | None = None
+) -> SensorGrid:
     """Build the lookup grid of a walled detector (numpy; done once per detector).
 
     ``cell_size`` (m) defaults to the largest of the sensor diameter, the median
     distance between neighbouring sensors and the margin below. Sensor j is listed in
     every cell whose centre lies within r_j + margin + half the cell diagonal of its
-    centre, where the margin grows with how far sensors stand off the wall.
+    centre, where the margin (m) defaults to one that grows with how far sensors stand
+    off the wall; any point then finds every sensor within r_j + margin of it.
     """
     from scipy.spatial import cKDTree
 
     positions = np.asarray(detector.sensor_positions, dtype=np.float64)
     radius = np.asarray(detector.sensor_radius, dtype=np.float64)
     standoff = float(np.max(np.asarray(detector.shape.distance_to_wall(positions))))
-    margin = BASE_MARGIN + 3.0 * max(standoff, 0.0)
+    if margin is None:
+        margin = BASE_MARGIN + 3.0 * max(standoff, 0.0)
     if cell_size is None:
         if len(positions) > 1:
             spacing, _ = cKDTree(positions).query(positions, k=2)

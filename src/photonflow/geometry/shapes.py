@@ -64,7 +64,8 @@ def _quadric_interval(a, b, c):
     Returns (t0, t1); an empty interval is (inf, -inf).
     """
     disc = b * b - a * c
-    root = jnp.sqrt(jnp.maximum(disc, 0.0))
+    positive = disc > 0
+    root = jnp.where(positive, jnp.sqrt(jnp.where(positive, disc, 1.0)), 0.0)  # finite grad
     q = -(b + jnp.where(b >= 0, root, -root))
     safe_q = jnp.where(q == 0, 1.0, q)
     safe_a = jnp.where(a == 0, 1.0, a)
@@ -364,9 +365,7 @@ class OpenMedium(Shape):
         xp = _xp(points)
         points = xp.asarray(points)
         rho = xp.hypot(points[..., 0], points[..., 1])
-        return xp.minimum(
-            self.world_radius - rho, 0.5 * self.world_height - xp.abs(points[..., 2])
-        )
+        return xp.minimum(self.world_radius - rho, 0.5 * self.world_height - xp.abs(points[..., 2]))
 
     def inward_normal(self, points):
         return Cylinder(self.world_radius, self.world_height).inward_normal(points)

@@ -27,7 +27,7 @@ from ..geometry.sensor_grid import SensorGrid
 from ..params import Params
 from ..prediction import Prediction
 from .direct import direct_light_jit
-from .indirect import indirect_light_jit, sensor_grid_for
+from .indirect import indirect_light_jit, near_grid_for, sensor_grid_for
 from .optics import TransportConfig
 
 
@@ -78,6 +78,7 @@ def expected(
         params,
         jax.tree.map(cast, source),
         key,
+        near_grid_for(detector),
         shape=detector.shape,
         config=config,
     )
@@ -92,13 +93,15 @@ def expected_jit(
     params,
     source,
     key,
+    near_grid=None,
     *,
     shape,
     config,
 ):
     """``expected`` on arrays: (N, 3) sensor centres m, (N, 3) inward unit normals, (N,)
-    disc radii m, the lookup grid (or None), ``params`` and ``source`` of one float dtype
-    and a ``jax.random`` key; ``shape`` and ``config`` static. Returns a ``Prediction``."""
+    disc radii m, the lookup grid (or None), ``params`` and ``source`` of one float dtype,
+    a ``jax.random`` key and the near-sensor grid (``near_grid_for``; None: far-field
+    solid angles only); ``shape`` and ``config`` static. Returns a ``Prediction``."""
     mu_direct, t_direct = direct_light_jit(
         sensor_positions, sensor_normals, sensor_radius, params, source
     )
@@ -111,6 +114,7 @@ def expected_jit(
         source,
         t_direct,
         key,
+        near_grid,
         shape=shape,
         config=config,
     )

@@ -119,7 +119,10 @@ def orthonormal_basis(direction):
 def deflect(direction, cos_theta, phi):
     """Turn unit ``direction`` by polar angle acos(cos_theta) at azimuth ``phi`` (rad)."""
     e1, e2 = orthonormal_basis(direction)
-    sin_theta = jnp.sqrt(jnp.clip(1.0 - cos_theta**2, 0.0, 1.0))
+    sin_squared = 1.0 - cos_theta**2
+    inside = sin_squared > 0
+    # sqrt with a zero (not infinite) derivative at sin = 0, so gradients stay finite
+    sin_theta = jnp.where(inside, jnp.sqrt(jnp.where(inside, sin_squared, 1.0)), 0.0)
     return (
         cos_theta[..., None] * direction
         + (sin_theta * jnp.cos(phi))[..., None] * e1
@@ -148,7 +151,8 @@ def dome_normal(offset, normal, radius):
     in_plane = offset - jnp.sum(offset * normal, axis=-1, keepdims=True) * normal
     rho2 = jnp.sum(in_plane * in_plane, axis=-1, keepdims=True)
     r = radius[..., None]
-    height = jnp.sqrt(jnp.maximum(r * r - rho2, 0.0))
+    inside = r * r - rho2 > 0
+    height = jnp.where(inside, jnp.sqrt(jnp.where(inside, r * r - rho2, 1.0)), 0.0)
     dome = (in_plane + height * normal) / r
     return dome / jnp.linalg.norm(dome, axis=-1, keepdims=True)
 

@@ -196,9 +196,7 @@ def _wall_outcome(u_reflect, u_kind, u1, u2, direction, points, shape, params):
     reflected = u_reflect < params.wall_reflectivity
     specular = u_kind < params.wall_specular_fraction
     diffuse = lambertian_direction(normal, u1, u2)
-    return reflected, jnp.where(
-        specular[:, None], specular_direction(direction, normal), diffuse
-    )
+    return reflected, jnp.where(specular[:, None], specular_direction(direction, normal), diffuse)
 
 
 def _step_function(shape, config, sensors, grid, params, key):
@@ -280,8 +278,9 @@ def _step_function(shape, config, sensors, grid, params, key):
 
 
 @functools.partial(jax.jit, static_argnames=("shape", "config", "batch"))
-def _transport_batch(key, batch_index, n_active, sensors, grid, params, source, *, shape, config,
-                     batch):
+def _transport_batch(
+    key, batch_index, n_active, sensors, grid, params, source, *, shape, config, batch
+):
     """Transport one batch; returns (status (B,), sensor (B,), arrival time (B,) ns)."""
     dtype = params.absorption_length.dtype
     batch_key = jax.random.fold_in(key, batch_index)
@@ -300,6 +299,7 @@ def _transport_batch(key, batch_index, n_active, sensors, grid, params, source, 
         status,
         jnp.full(batch, -1, jnp.int32),
     )
+
     def running(state):
         return jnp.any(state[5] == ALIVE) & (state[0] <= config.n_bounces)
 
@@ -413,8 +413,16 @@ def sample_photons(
     def launch(index):
         n_active = min(batch, n_photons - index * batch)
         return _transport_batch(
-            key, jnp.uint32(index), jnp.int32(n_active), sensors, grid, params_c, source_c,
-            shape=detector.shape, config=config, batch=batch,
+            key,
+            jnp.uint32(index),
+            jnp.int32(n_active),
+            sensors,
+            grid,
+            params_c,
+            source_c,
+            shape=detector.shape,
+            config=config,
+            batch=batch,
         )
 
     counts = np.zeros(N_STATUS, np.int64)
