@@ -21,6 +21,7 @@ from photonflow.likelihood import (
 )
 from photonflow.params import N_ACCEPTANCE_ANGLES, PARAM_SPECS, Params
 from photonflow.prediction import Prediction
+from photonflow.response import single_pe_charges
 
 SPE_WIDTH = 0.4
 WINDOW = (0.0, 100.0)
@@ -74,6 +75,26 @@ def simpson(y, x):
 # (a) P(unhit) + integral of p(hit, q, t) dq dt = 1 -----------------------------------------
 
 
+def charge_grid(q_range, dq):
+    """Charge nodes (p.e.) with a node just below and one at zero, where the density of
+    one photoelectron (a normal truncated at 0) jumps, so each side integrates smoothly."""
+    lo, hi = q_range
+    if lo >= 0:
+        return np.linspace(lo, hi, 2 * int(round((hi - lo) / dq / 2)) + 1)
+    left = np.linspace(lo, -1e-12, 2 * int(round(-lo / dq / 2)) + 1)
+    right = np.linspace(0.0, hi, 2 * int(round(hi / dq / 2)) + 1)
+    return np.concatenate([left, right])
+
+
+def integrate_charge(values, q):
+    """Simpson integral over the charge axis (last), piecewise on either side of zero."""
+    split = int(np.searchsorted(q, 0.0))
+    if split in (0, q.size):
+        return simpson(values, q)
+    return simpson(values[..., :split], q[:split]) + simpson(values[..., split:], q[split:])
+
+
+
 @pytest.mark.parametrize(
     ("mu", "dark_rate", "threshold", "q_range", "dq"),
     [
@@ -88,7 +109,7 @@ def simpson(y, x):
 )
 def test_likelihood_is_normalised(mu, dark_rate, threshold, q_range, dq):
     with jax.enable_x64(True):
-        q = np.arange(q_range[0], q_range[1] + dq / 2, dq)
+        q = charge_grid(q_range, dq)
         t = np.linspace(WINDOW[0], WINDOW[1], 401)
         n = q.size
         prediction = make_prediction(mu, n)
@@ -104,7 +125,7 @@ def test_likelihood_is_normalised(mu, dark_rate, threshold, q_range, dq):
 
         grid_fn = jax.jit(lambda times: jax.lax.map(density, times, batch_size=16))
         grid = np.asarray(grid_fn(jnp.asarray(t)))  # (n_t, n_q)
-        p_hit = simpson(simpson(grid, q), t)
+        p_hit = simpson(integrate_charge(grid, q), t)
         empty = hits([], [], [])
         unhit_nll = jax.jit(
             lambda p, par: sensor_nll(p, empty, par, window=WINDOW, charge_threshold=threshold)
@@ -184,22 +205,32 @@ def test_first_hit_density_matches_poisson_process():
 # (c) charge term against a Monte Carlo of summed single-p.e. charges ------------------------
 
 
+def bin_probability(mu, low, high, nodes=65):
+    """Integral of the charge density over [low, high] (p.e.), split at zero."""
+    pieces = [(low, high)] if not low < 0 < high else [(low, -1e-12), (0.0, high)]
+    total = 0.0
+    for a, b in pieces:
+        x = np.linspace(a, b, nodes)
+        with jax.enable_x64(True):
+            dens = np.exp(np.asarray(jax.jit(charge_logpdf)(jnp.asarray(x), mu, SPE_WIDTH)))
+        total += simpson(dens, x)
+    return total
+
+
 @pytest.mark.parametrize("mu", [0.3, 3.0, 30.0])
 def test_charge_matches_monte_carlo(mu):
     rng = np.random.default_rng(int(mu * 10))
     n = rng.poisson(mu, 400_000)
     n = n[n >= 1]
-    q = n + np.sqrt(n) * SPE_WIDTH * rng.standard_normal(n.size)
+    # The sampled mode's single-p.e. model: Normal(1, w) truncated at 0, summed over n.
+    single = single_pe_charges(rng, int(n.sum()), SPE_WIDTH)
+    q = np.add.reduceat(single, np.concatenate([[0], np.cumsum(n)[:-1]]))
     lo, hi = -2.0, mu + 8 * np.sqrt(mu) + 4
     edges = np.linspace(lo, hi, 61)
-    fine = np.linspace(lo, hi, 60 * 32 + 1)
     with jax.enable_x64(True):
-        dens = np.exp(np.asarray(jax.jit(charge_logpdf)(jnp.asarray(fine), mu, SPE_WIDTH)))
         logcdf = np.asarray(jax.jit(charge_logcdf)(jnp.asarray(edges), mu, SPE_WIDTH))
-    prob = np.array(
-        [simpson(dens[i * 32 : (i + 1) * 32 + 1], fine[i * 32 : (i + 1) * 32 + 1])
-         for i in range(60)]
-    )
+    prob = np.array([bin_probability(mu, edges[i], edges[i + 1]) for i in range(60)])
+
     np.testing.assert_allclose(np.diff(np.exp(logcdf)), prob, rtol=1e-6, atol=1e-12)
     counts, _ = np.histogram(q, bins=edges)
     expected = n.size * prob

@@ -2,9 +2,10 @@
 
 Each step is a title and a function of the shared ``DemoContext`` that returns a
 one-line result and the files it wrote; ``run_demo`` runs them in order with a rich
-status display. At this stage the steps show the detector presets and draw the
-sensor layouts of the default cylinder (SK) and sphere (JUNO); the later stages
-(simulate, calibrate, reconstruct) are appended to ``demo_steps``.
+status display. The steps show the detector presets, draw the sensor layouts of the
+default cylinder (SK) and sphere (JUNO), and simulate a calibration run in SK with its
+event display; the later stages (calibrate, reconstruct) are appended to
+``demo_steps``.
 """
 
 from __future__ import annotations
@@ -73,9 +74,62 @@ def geometry_step(name: str) -> Step:
     return Step(f"sensor layout of {name}", run)
 
 
+#: The demo's calibration run: an isotropic flash at the centre of the default detector.
+CALIBRATION_PHOTONS = 1e6
+CALIBRATION_EVENTS = 3
+
+
+def calibration_run_step(name: str) -> Step:
+    """Simulate a calibration run (isotropic flashes at the centre, photon by photon),
+    write it to ``<out_dir>/calibration_run.h5`` and draw its first event; compare the
+    mean detected light with the expected mode's prediction."""
+
+    def run(context: DemoContext) -> StepResult:
+        import jax
+        import numpy as np
+
+        from .config import load_setup
+        from .io import read_events, write_events
+        from .sources import IsotropicSource
+        from .transport.expected import expected
+        from .transport.optics import TransportConfig
+        from .transport.sampled import sample_events
+        from .viz import plot_event
+
+        setup = load_setup(name)
+        source = IsotropicSource(position=[0.0, 0.0, 0.0], n_photons=CALIBRATION_PHOTONS)
+        config = TransportConfig(n_bounces=2, n_rays=1024)
+        path = context.out_dir / "calibration_run.h5"
+        events = sample_events(
+            setup.detector, setup.params, source, 1, CALIBRATION_EVENTS, config=config
+        )
+        write_events(path, events, setup.detector, setup.params, mode="recreate")
+        picture = context.out_dir / "calibration_event0.png"
+        with read_events(path) as stored:
+            charges = [float(np.sum(event.charge)) for event in stored]
+            plot_event(stored.detector, stored[0], picture)
+        prediction = expected(
+            setup.detector, setup.params, source, config=config, key=jax.random.key(0)
+        )
+        mean_pe = float(np.sum(prediction.charge))
+        return StepResult(
+            f"{CALIBRATION_EVENTS} flashes of {CALIBRATION_PHOTONS:.0e} photons in {name}:"
+            f" {np.mean(charges):,.0f} p.e. per event sampled (incl. dark noise),"
+            f" {mean_pe:,.0f} p.e. expected; event display in {picture}",
+            (path, picture),
+        )
+
+    return Step(f"calibration run in {name}", run)
+
+
 def demo_steps() -> list[Step]:
     """The steps of the main job, in order."""
-    return [presets_step(), geometry_step(DEFAULT_DETECTOR), geometry_step(SPHERE_DETECTOR)]
+    return [
+        presets_step(),
+        geometry_step(DEFAULT_DETECTOR),
+        geometry_step(SPHERE_DETECTOR),
+        calibration_run_step(DEFAULT_DETECTOR),
+    ]
 
 
 def run_demo(
@@ -106,13 +160,15 @@ def run_demo(
         elapsed = time.perf_counter() - began
         console.print(
             f"[green]done[/green] {label}: {result.summary} [dim]({elapsed:.1f} s)[/dim]",
-            highlight=False, soft_wrap=True,
+            highlight=False,
+            soft_wrap=True,
         )
         written.extend(result.files)
     console.print(
         f"\nDemo finished in {time.perf_counter() - start:.1f} s;"
         f" {len(written)} files in {context.out_dir.resolve()}:",
-        highlight=False, soft_wrap=True,
+        highlight=False,
+        soft_wrap=True,
     )
     for path in written:
         console.print(f"  {path}", highlight=False, soft_wrap=True)

@@ -30,11 +30,12 @@ from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
-from jax.scipy.special import gammaln, log_ndtr
+from jax.scipy.special import gammaln, log_ndtr, ndtr
 
 from .io.events import Event
 from .params import Params
 from .prediction import Prediction
+from .spe import single_pe_moments
 
 #: Floor on the dark-noise expectation per sensor and window, p.e.
 DARK_FLOOR = 1e-9
@@ -54,9 +55,7 @@ def log1mexp(mu: jax.Array) -> jax.Array:
     small = mu < _LOG2
     safe_small = jnp.where(small, mu, _LOG2)
     safe_large = jnp.where(small, 1.0, mu)
-    return jnp.where(
-        small, jnp.log(-jnp.expm1(-safe_small)), jnp.log1p(-jnp.exp(-safe_large))
-    )
+    return jnp.where(small, jnp.log(-jnp.expm1(-safe_small)), jnp.log1p(-jnp.exp(-safe_large)))
 
 
 def _charge_mixture(
@@ -70,7 +69,9 @@ def _charge_mixture(
 ) -> jax.Array:
     """Log of E[kernel(n) | n >= 1] for n ~ Poisson(mu), blended into a Gaussian kernel.
 
-    ``poisson_kernel(n, sigma_n)`` and ``gauss_kernel(mean, sd)`` return log values.
+    ``poisson_kernel(n, mean_n, sigma_n)`` and ``gauss_kernel(mean, sd)`` return log
+    values; the single-p.e. charge is the truncated normal of ``photonflow.spe`` (exact
+    for n = 1, a moment-matched normal for n >= 2).
     """
     tiny = jnp.finfo(mu.dtype).tiny
     lo, hi = mu_switch - blend, mu_switch + blend
@@ -79,18 +80,24 @@ def _charge_mixture(
     poisson_only = mu <= lo
     gauss_only = mu >= hi
 
+    # n photoelectrons give a charge of mean n m1 and variance n v1 (``spe``).
+    mean_one, var_one = single_pe_moments(spe_width)
+
     # Exact Poisson sum over n_lo .. n_lo + n_terms - 1 (double-where: safe mu).
     mu_p = jnp.where(gauss_only, mu_switch, jnp.maximum(mu, tiny))
     n_lo = jnp.maximum(1.0, jnp.floor(mu_p) - (n_terms // 2 - 1))
     n = n_lo[..., None] + jnp.arange(n_terms, dtype=mu.dtype)
-    sigma_n = jnp.sqrt(n) * spe_width[..., None]
+    sigma_n = jnp.sqrt(n * var_one[..., None])
     log_weight = (n - 1.0) * jnp.log(mu_p)[..., None] - gammaln(n + 1.0)
     log_norm = jnp.log(mu_p) - mu_p - log1mexp(mu_p)  # log(mu e^-mu / (1 - e^-mu))
-    log_poisson = jax.nn.logsumexp(log_weight + poisson_kernel(n, sigma_n), axis=-1) + log_norm
+    log_poisson = (
+        jax.nn.logsumexp(log_weight + poisson_kernel(n, n * mean_one[..., None], sigma_n), axis=-1)
+        + log_norm
+    )
 
     # Gaussian approximation (double-where: safe mu).
     mu_g = jnp.where(poisson_only, mu_switch, mu)
-    log_gauss = gauss_kernel(mu_g, jnp.sqrt(mu_g * (1.0 + spe_width * spe_width)))
+    log_gauss = gauss_kernel(mu_g * mean_one, jnp.sqrt(mu_g * (var_one + mean_one * mean_one)))
 
     s_mid = jnp.where(poisson_only | gauss_only, 0.5, s)
     mixed = jnp.logaddexp(jnp.log1p(-s_mid) + log_poisson, jnp.log(s_mid) + log_gauss)
@@ -100,6 +107,24 @@ def _charge_mixture(
 def _normal_logpdf(x: jax.Array, mean: jax.Array, sd: jax.Array) -> jax.Array:
     z = (x - mean) / sd
     return -0.5 * z * z - jnp.log(sd) - _HALF_LOG_2PI
+
+
+#: Log value standing in for log 0 (a charge below zero from one photoelectron).
+_LOG_ZERO = -1e30
+
+
+def _truncated_logpdf(q: jax.Array, width: jax.Array) -> jax.Array:
+    """log density (1/p.e.) of one photoelectron's charge, Normal(1, w) truncated at 0."""
+    value = _normal_logpdf(q, 1.0, width) - log_ndtr(1.0 / width)
+    return jnp.where(q >= 0, value, _LOG_ZERO)
+
+
+def _truncated_logcdf(q: jax.Array, width: jax.Array) -> jax.Array:
+    """log P(charge < q) of one photoelectron (Normal(1, w) truncated at 0)."""
+    floor = ndtr(-1.0 / width)
+    above = jnp.maximum(ndtr((q - 1.0) / width) - floor, jnp.finfo(q.dtype).tiny)
+    value = jnp.log(above) - log_ndtr(1.0 / width)
+    return jnp.where(q > 0, value, _LOG_ZERO)
 
 
 def charge_logpdf(
@@ -116,7 +141,8 @@ def charge_logpdf(
     Args:
         q: charge, p.e. (any shape broadcasting with ``mu``).
         mu: expected number of photoelectrons (> 0), p.e.
-        spe_width: single-p.e. charge width sigma / mean, p.e. (scalar or broadcastable).
+        spe_width: width w of the single-p.e. charge Normal(1, w) truncated at 0 (see
+            ``photonflow.spe``), p.e. (scalar or broadcastable).
         n_terms: number of consecutive n summed in the exact branch (static).
         mu_switch: centre of the blend into the Gaussian approximation, p.e. (static).
         blend: half-width of the blend, p.e. (static).
@@ -124,10 +150,15 @@ def charge_logpdf(
     q, mu = jnp.broadcast_arrays(jnp.asarray(q), jnp.asarray(mu))
     width = jnp.broadcast_to(jnp.asarray(spe_width, dtype=mu.dtype), mu.shape)
     q = q.astype(mu.dtype)
+
+    def kernel(n, mean_n, sigma_n):
+        one = _truncated_logpdf(q[..., None], width[..., None])
+        return jnp.where(n == 1, one, _normal_logpdf(q[..., None], mean_n, sigma_n))
+
     return _charge_mixture(
         mu,
         width,
-        lambda n, sigma_n: _normal_logpdf(q[..., None], n, sigma_n),
+        kernel,
         lambda mean, sd: _normal_logpdf(q, mean, sd),
         n_terms,
         mu_switch,
@@ -153,10 +184,15 @@ def charge_logcdf(
     q, mu = jnp.broadcast_arrays(jnp.asarray(q), jnp.asarray(mu))
     width = jnp.broadcast_to(jnp.asarray(spe_width, dtype=mu.dtype), mu.shape)
     q = q.astype(mu.dtype)
+
+    def kernel(n, mean_n, sigma_n):
+        one = _truncated_logcdf(q[..., None], width[..., None])
+        return jnp.where(n == 1, one, log_ndtr((q[..., None] - mean_n) / sigma_n))
+
     return _charge_mixture(
         mu,
         width,
-        lambda n, sigma_n: log_ndtr((q[..., None] - n) / sigma_n),
+        kernel,
         lambda mean, sd: log_ndtr((q - mean) / sd),
         n_terms,
         mu_switch,

@@ -52,7 +52,8 @@ def as_generator(key_or_seed) -> np.random.Generator:
 
 
 def single_pe_charges(rng: np.random.Generator, count: int, spe_width: float) -> np.ndarray:
-    """``count`` single-photoelectron charges (p.e.): Normal(1, spe_width) truncated at 0.
+    """``count`` single-photoelectron charges (p.e.): Normal(1, spe_width) truncated at 0
+    (the model of ``photonflow.spe``, whose moments the likelihood uses).
 
     Drawn by inverse CDF restricted to q >= 0: q = 1 + w ndtri(F0 + u (1 - F0)) with
     F0 = Phi(-1 / w), so every draw is used and none is negative.
