@@ -84,6 +84,8 @@ from .solid_angle import disc_solid_angle
 
 #: Uniform random numbers drawn per ray and vertex.
 _UNIFORMS_PER_VERTEX = 8
+#: Rays whose next-event estimates are computed together (bounds memory to ~ block x N).
+NEE_BLOCK = 128
 #: Rim nodes of the exact solid angle of discs near a vertex.
 NEAR_NODES = 32
 #: Discs nearer than this many radii to a vertex get the exact solid angle.
@@ -362,16 +364,32 @@ def indirect_light_jit(
     rate_abs, rate_rayleigh, rate_mie, rate_total = interaction_rates(params)
     anisotropy = config.rayleigh_anisotropy
     far = functools.partial(_next_event, params, sensors, config, reference_time)
-    if near_grid is None:
-        nee = jax.checkpoint(far)
-    else:
+    near = None
+    if near_grid is not None:
         near = functools.partial(
             _near_correction, params, sensors, config, reference_time, near_grid
         )
 
-        @jax.checkpoint
-        def nee(*vertex_data):
-            return tuple(a + b for a, b in zip(far(*vertex_data), near(*vertex_data), strict=True))
+    @jax.checkpoint
+    def nee_block(*vertex_data):
+        sums = far(*vertex_data)
+        if near is None:
+            return sums
+        return tuple(a + b for a, b in zip(sums, near(*vertex_data), strict=True))
+
+    def nee(*vertex_data):
+        """NEE summed over blocks of NEE_BLOCK rays (memory ~ NEE_BLOCK x N, not R x N)."""
+        block = min(NEE_BLOCK, n_rays)
+        pad = -n_rays % block
+        padded = [jnp.pad(x, [(0, pad)] + [(0, 0)] * (x.ndim - 1)) for x in vertex_data]
+        padded[1] = padded[1].at[n_rays:].set(0.0)  # weight 0 for the padding rays
+        blocks = [x.reshape((-1, block) + x.shape[1:]) for x in padded]
+
+        def accumulate(total, data):
+            return tuple(a + b for a, b in zip(total, nee_block(*data), strict=True)), None
+
+        zeros = tuple(jnp.zeros(n, dtype=dtype) for _ in range(3))
+        return jax.lax.scan(accumulate, zeros, blocks)[0]
 
     def step(carry, order):
         origins, directions, weight, time, specular = carry
