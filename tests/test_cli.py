@@ -97,6 +97,11 @@ def test_demo_writes_the_geometry_pictures(tmp_path):
         assert_png(tmp_path / "out" / f"geometry_{name}.png")
         assert f"geometry_{name}.png" in result.stdout
     assert "11146" in result.stdout  # the preset table comes first
+    # the calibration run: an event file with its truth, and its event display
+    assert_png(tmp_path / "out" / "calibration_event0.png")
+    with photonflow.read_events(tmp_path / "out" / "calibration_run.h5") as events:
+        assert len(events) == 3 and events.detector.name == "SK"
+        assert events[0].truth.source_kind == "isotropic" and events[0].n_hits > 1000
 
 
 def test_readme_starts_with_set_up_and_its_preset_table_matches_the_presets():
@@ -116,3 +121,52 @@ def test_readme_starts_with_set_up_and_its_preset_table_matches_the_presets():
         expected = [row["name"], row["shape"], row["dimensions"], str(row["sensors"]), coverage,
                     row["sensor_model"], row["medium"]]
         assert rows[row["name"]][:7] == expected
+
+
+def test_simulate_then_info_and_display(tmp_path):
+    result = run("simulate", "--detector", "TOY_CYLINDER", "--source", "laser",
+                 "--position", "0,0,1", "--direction", "0,0,-1", "--opening-angle", "0.3",
+                 "--photons", "2e4", "--events", "4", "--seed", "5", "--out", "run.h5",
+                 cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    with photonflow.read_events(tmp_path / "run.h5") as events:
+        assert len(events) == 4
+        truth = events[0].truth
+        assert truth.source_kind == "laser" and truth.seed == 5
+        assert list(truth.position) == [0.0, 0.0, 1.0]
+        assert all(event.n_hits > 0 for event in events)
+    info = run("info", "run.h5", cwd=tmp_path)
+    assert info.returncode == 0 and "events       4" in info.stdout
+    shown = run("display", "run.h5", "--event", "2", "--out", "ev.png", cwd=tmp_path)
+    assert shown.returncode == 0, shown.stderr
+    assert_png(tmp_path / "ev.png")
+    # the same seed gives the same events; create mode refuses to overwrite
+    again = run("simulate", "--detector", "TOY_CYLINDER", "--source", "laser",
+                "--position", "0,0,1", "--direction", "0,0,-1", "--opening-angle", "0.3",
+                "--photons", "2e4", "--events", "4", "--seed", "5", "--out", "run.h5",
+                cwd=tmp_path)
+    assert_one_line_error(again, "run.h5", "recreate")
+
+
+def test_simulate_bad_input_is_one_line_and_writes_nothing(tmp_path):
+    cases = [
+        (["--position", "0,0,9"], "source.position"),
+        (["--photons", "-5"], "source.n_photons"),
+        (["--position", "1,2"], "--position"),
+        (["--source", "torch"], "source = 'torch'"),
+        (["--source", "laser"], "source.direction"),
+        (["--detector", "NOPE"], "NOPE"),
+    ]
+    for extra, fragment in cases:
+        result = run("simulate", "--detector", "TOY_CYLINDER", "--out", "bad.h5", *extra,
+                     cwd=tmp_path)
+        assert_one_line_error(result, fragment)
+        assert not (tmp_path / "bad.h5").exists()
+
+
+def test_display_out_of_range_event(tmp_path):
+    result = run("simulate", "--detector", "TOY_SPHERE", "--photons", "1e3", "--out", "r.h5",
+                 cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert_one_line_error(run("display", "r.h5", "--event", "3", cwd=tmp_path),
+                          "--event = 3", "0..0")
