@@ -10,8 +10,8 @@ d_j = |c_j - p| and the unit direction w_j = (c_j - p) / d_j:
 N photons emitted, S the source's emission density (photons / sr / photon), Omega_j
 the exact solid angle of the disc (``disc_solid_angle``), QE the global quantum
 efficiency, eff_j the sensor's relative efficiency, A the angular acceptance
-linearly interpolated in the incidence angle theta_j = angle(-w_j, n_j) from the
-table at 0, 10, ..., 90 degrees (held at its end values outside), the exponential the
+interpolated (``optics.acceptance_at_cos``, linear in cos theta) at the incidence
+theta_j = angle(-w_j, n_j) from the table at 0, 10, ..., 90 degrees, the exponential the
 survival probability without absorption and without any scattering, n_g the group
 index and c = 0.299792458 m/ns. Only sensors whose front face sees the source
 (cos theta_j > 0) receive light. S and A are evaluated at the disc centre (exact for
@@ -20,38 +20,22 @@ the isotropic source and a flat acceptance; otherwise accurate to order (r/d)^2)
 
 from __future__ import annotations
 
-import math
-
 import jax
 import jax.numpy as jnp
 
 from ..geometry.detector import Detector
-from ..params import N_ACCEPTANCE_ANGLES, Params
+from ..params import Params
+from .optics import acceptance_at_cos
 from .solid_angle import DEFAULT_NODES, disc_solid_angle
 
 #: Speed of light in vacuum, m/ns.
 SPEED_OF_LIGHT = 0.299792458
-#: Spacing of the angular-acceptance table, rad (10 degrees).
-ACCEPTANCE_STEP = math.radians(10.0)
 
 
 def interpolate_acceptance(table, incidence):
-    """Linear interpolation of the (10,) acceptance table (0, 10, ..., 90 deg) at angles (rad).
-
-    Angles beyond 90 degrees take the last entry. Differentiable in ``table`` and, away
-    from the table nodes, in ``incidence``.
-    """
-    position = jnp.clip(incidence / ACCEPTANCE_STEP, 0.0, N_ACCEPTANCE_ANGLES - 1.0)
-    lower = jnp.clip(jnp.floor(position), 0, N_ACCEPTANCE_ANGLES - 2).astype(jnp.int32)
-    weight = position - lower.astype(position.dtype)
-    return table[lower] * (1.0 - weight) + table[lower + 1] * weight
-
-
-def _safe_norm(vectors):
-    """|v| along the last axis with a zero (not NaN) gradient at v = 0."""
-    squared = jnp.sum(vectors * vectors, axis=-1)
-    positive = squared > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, squared, 1.0)), 0.0)
+    """Angular acceptance at incidence angles (rad): ``optics.acceptance_at_cos`` of their
+    cosines (the one definition used by every mode)."""
+    return acceptance_at_cos(table, jnp.cos(incidence))
 
 
 def direct_light(detector: Detector, params: Params, source):
@@ -98,8 +82,6 @@ def direct_light_jit(sensor_positions, sensor_normals, sensor_radius, params: Pa
     distance = jnp.sqrt(jnp.sum(offset * offset, axis=-1))
     direction = offset / distance[:, None]
     cos_incidence = -jnp.sum(direction * normals, axis=-1)
-    sin_incidence = _safe_norm(jnp.cross(direction, normals))
-    incidence = jnp.arctan2(sin_incidence, cos_incidence)
     facing = cos_incidence > 0
 
     solid_angle = disc_solid_angle(source.position, centres, normals, radii, n_nodes=DEFAULT_NODES)
@@ -111,7 +93,7 @@ def direct_light_jit(sensor_positions, sensor_normals, sensor_radius, params: Pa
             + 1.0 / params.mie_length
         )
     )
-    acceptance = interpolate_acceptance(params.angular_acceptance, incidence)
+    acceptance = acceptance_at_cos(params.angular_acceptance, cos_incidence)
     mu = (
         source.n_photons
         * source.emission_density(direction)

@@ -64,9 +64,9 @@ from ..geometry.shapes import Shape
 from ..params import Params
 from ..pytree import pytree_dataclass
 from ..sources import DiffuserSource, LaserSource
-from .direct import interpolate_acceptance
 from .optics import (
     TransportConfig,
+    acceptance_at_cos,
     deflect,
     dome_normal,
     dome_reflection_density,
@@ -145,12 +145,6 @@ def _safe_sqrt(x):
     return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
 
 
-def _acceptance_of_cos(table, cos_incidence):
-    """Angular acceptance at incidence angles given by their cosines (finite gradients)."""
-    sin_incidence = _safe_sqrt(1.0 - cos_incidence * cos_incidence)
-    return interpolate_acceptance(table, jnp.arctan2(sin_incidence, cos_incidence))
-
-
 @dataclasses.dataclass(frozen=True)
 class _Sensors:
     positions: jax.Array
@@ -182,7 +176,7 @@ def _detect_on_segment(params, sensors, weight, time, directions, t_end, index, 
         * jnp.exp(-rate_total * t_end)
         * params.quantum_efficiency
         * params.efficiency[index]
-        * _acceptance_of_cos(params.angular_acceptance, cos_in)
+        * acceptance_at_cos(params.angular_acceptance, cos_in)
     )
     detected = jnp.where(counts, detected, 0.0)
     arrival = time + travel_time(t_end, params) + params.time_offset[index]
@@ -243,7 +237,7 @@ def _pair_light(params, config, vertex, d_in, wall_n, kind, positions, normals):
     factor = (
         density
         * jnp.exp(-interaction_rates(params)[3] * distance)
-        * _acceptance_of_cos(params.angular_acceptance, jnp.maximum(cos_in, 0.0))
+        * acceptance_at_cos(params.angular_acceptance, jnp.maximum(cos_in, 0.0))
         * params.quantum_efficiency
     )
     return distance, cos_in, factor

@@ -8,14 +8,15 @@ One description of the physics, used by both modes so that they agree by constru
   ``wall_reflectivity``; a reflection is specular with probability
   ``wall_specular_fraction`` and Lambertian (cosine law) otherwise; the rest is absorbed;
 - sensor: a photon crossing a sensor's disc from the front is detected with
-  probability QE x efficiency_j x acceptance(incidence), reflected with probability
-  ``sensor_reflectivity``, and absorbed otherwise (QE x acceptance is the detection
-  probability of a photon arriving on the sensor, so direct light by quadrature uses
-  the same factor). The reflection is specular off the hemispherical glass dome above
-  the disc: a photon crossing the disc at offset q from its centre is mirrored about
-  the dome's normal there, (q + sqrt(r^2 - |q|^2) n) / r. A convex dome spreads the
-  reflected light over a wide range of directions (``dome_reflection_density``), as
-  the glass of a real PMT does; a flat mirror disc would not.
+  probability QE x efficiency_j x acceptance(incidence) (``acceptance_at_cos``),
+  reflected with probability ``sensor_reflectivity``, and absorbed otherwise
+  (QE x acceptance is the detection probability of a photon arriving on the sensor,
+  so direct light by quadrature uses the same factor). The reflection is specular off
+  the hemispherical glass dome above the disc: a photon crossing the disc at offset q
+  from its centre is mirrored about the dome's normal there, (q + sqrt(r^2 - |q|^2) n)
+  / r. A convex dome spreads the reflected light over a wide range of directions
+  (``dome_reflection_density``), as the glass of a real PMT does; a flat mirror disc
+  would not.
 
 Samplers take uniform random numbers explicitly (reparameterised), so the expected mode
 can fix them and stay smooth in the parameters. Angles in rad, lengths in m.
@@ -91,7 +92,8 @@ def sample_rayleigh_cos(u, anisotropy, iterations: int = 12):
 
 def henyey_greenstein_density(cos_theta, g):
     """Henyey-Greenstein phase function per steradian with asymmetry g in (-1, 1)."""
-    denominator = (1.0 + g * g - 2.0 * g * cos_theta) ** 1.5
+    base = 1.0 + g * g - 2.0 * g * cos_theta
+    denominator = base * jnp.sqrt(base)  # base^1.5 without a pow (cheap per pair)
     return (1.0 - g * g) / (4.0 * math.pi * denominator)
 
 
@@ -171,6 +173,25 @@ def dome_reflection_density(direction_in, direction_out, normal):
     h_out = jnp.sum(half * direction_out, axis=-1) / norm
     valid = (h_n > 0) & (h_out > 0)
     return jnp.where(valid, h_n / (4.0 * math.pi * jnp.where(valid, h_out, 1.0)), 0.0)
+
+
+#: Incidence angles (rad) of the ``angular_acceptance`` table: 0, 10, ..., 90 degrees.
+ACCEPTANCE_ANGLES = tuple(math.radians(10.0 * i) for i in range(10))
+_ACCEPTANCE_COS = tuple(math.cos(angle) for angle in ACCEPTANCE_ANGLES)
+
+
+def acceptance_at_cos(table, cos_incidence):
+    """Angular acceptance at incidence cos theta: the (10,) table at 0, 10, ..., 90 degrees,
+    interpolated linearly in cos theta between its nodes (1 above 0 degrees is the first
+    entry; below 90 degrees the last). Written as a sum of clipped ramps: no inverse
+    trigonometry and no gathers, which keeps it cheap on every sensor-vertex pair, and
+    differentiable in the table and in cos theta."""
+    value = table[9]
+    for i in range(9):
+        upper, lower = _ACCEPTANCE_COS[i], _ACCEPTANCE_COS[i + 1]
+        ramp = jnp.clip((cos_incidence - lower) / (upper - lower), 0.0, 1.0)
+        value = value + (table[i] - table[i + 1]) * ramp
+    return value
 
 
 def travel_time(distance, params: Params):

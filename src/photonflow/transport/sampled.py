@@ -47,11 +47,11 @@ from ..io.events import Event, Truth
 from ..params import Params, validate_params
 from ..response import DEFAULT_CONFIG, photoelectrons_to_event
 from ..sources import DiffuserSource, IsotropicSource, LaserSource, check_source
-from .direct import interpolate_acceptance
 from .emission import sample_directions
 from .optics import (
     SPEED_OF_LIGHT,
     TransportConfig,
+    acceptance_at_cos,
     deflect,
     dome_normal,
     interaction_rates,
@@ -182,7 +182,7 @@ def _sensor_outcome(u, direction, point, sensor, sensors, params):
     positions, normals, radius = sensors
     normal = normals[sensor]
     cos_incidence = jnp.clip(-jnp.sum(direction * normal, axis=-1), -1.0, 1.0)
-    acceptance = interpolate_acceptance(params.angular_acceptance, jnp.arccos(cos_incidence))
+    acceptance = acceptance_at_cos(params.angular_acceptance, cos_incidence)
     p_detect = params.quantum_efficiency * params.efficiency[sensor] * acceptance
     detected = u < p_detect
     reflected = ~detected & (u < p_detect + params.sensor_reflectivity)
