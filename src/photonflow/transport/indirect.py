@@ -69,7 +69,7 @@ from .optics import (
     acceptance_at_cos,
     deflect,
     dome_normal,
-    dome_reflection_density,
+    dome_reflection_density_cos,
     henyey_greenstein_density,
     interaction_rates,
     lambertian_density,
@@ -205,35 +205,49 @@ def far_solid_angle(distance, cos_in, radius):
     )
 
 
-def _redirection(params, config, unit, kind, d_in, wall_n):
-    """Per-sr density of light leaving a vertex towards ``unit`` directions (..., M, 3)."""
+def _redirection(params, config, cos_turn, cos_out, in_normal, kind):
+    """Per-sr density of light leaving a vertex, from the cosines of the outgoing
+    direction u with the incoming direction i (``cos_turn``) and with the surface normal n
+    (``cos_out``), and i . n (``in_normal``): phase function for a scatter, Lambertian for a
+    wall, the dome reflection density (u . n - i . n) / (4 pi (1 - u . i)) for glass."""
     _, rate_rayleigh, rate_mie, _ = interaction_rates(params)
-    cos_turn = jnp.sum(unit * d_in, axis=-1)
     scatter_density = rate_rayleigh * rayleigh_density(
         cos_turn, config.rayleigh_anisotropy
     ) + rate_mie * henyey_greenstein_density(cos_turn, params.mie_g)
     wall_density = (
         params.wall_reflectivity
         * (1.0 - params.wall_specular_fraction)
-        * lambertian_density(jnp.sum(unit * wall_n, axis=-1))
+        * lambertian_density(cos_out)
     )
-    glass_density = params.sensor_reflectivity * dome_reflection_density(d_in, unit, wall_n)
+    glass_density = params.sensor_reflectivity * dome_reflection_density_cos(
+        cos_turn, cos_out, in_normal
+    )
     return jnp.where(
         kind == _SCATTER, scatter_density, jnp.where(kind == _WALL, wall_density, glass_density)
     )
 
 
-def _pair_light(params, config, vertex, d_in, wall_n, kind, positions, normals):
-    """Geometry and light factors of vertex-sensor pairs (vertex (R, 1, 3), sensors (.., M, 3)).
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
+
+def _pair_light(params, config, vertex, d_in, wall_n, kind, positions, normals):
+    """Geometry and light factors of vertex-sensor pairs, on x, y, z components.
+
+    ``vertex``, ``d_in`` (incoming direction), ``wall_n`` (surface normal at the vertex)
+    are 3-tuples of (R, 1) arrays, ``kind`` (R, 1); ``positions`` and ``normals`` 3-tuples
+    of sensor arrays broadcasting against them ((1, N) or (R, K)). Components are kept
+    apart (structure of arrays) so that XLA fuses every pair's arithmetic into one loop.
     Returns (distance m, cos_in, factor): factor = redirection density x attenuation x
     acceptance x QE (per sr per unit weight, before the solid angle and efficiency).
     """
-    offset = positions - vertex
-    distance = jnp.sqrt(jnp.maximum(jnp.sum(offset * offset, axis=-1), 1e-12))
-    unit = offset / distance[..., None]
-    cos_in = -jnp.sum(unit * normals, axis=-1)
-    density = _redirection(params, config, unit, kind, d_in, wall_n)
+    offset = tuple(p - v for p, v in zip(positions, vertex, strict=True))
+    distance = jnp.sqrt(jnp.maximum(_dot(offset, offset), 1e-12))
+    inverse = 1.0 / distance
+    cos_in = -_dot(offset, normals) * inverse
+    cos_turn = _dot(offset, d_in) * inverse
+    cos_out = _dot(offset, wall_n) * inverse
+    density = _redirection(params, config, cos_turn, cos_out, _dot(d_in, wall_n), kind)
     factor = (
         density
         * jnp.exp(-interaction_rates(params)[3] * distance)
@@ -243,17 +257,22 @@ def _pair_light(params, config, vertex, d_in, wall_n, kind, positions, normals):
     return distance, cos_in, factor
 
 
+def _components(vectors):
+    """(..., 3) -> 3-tuple of (..., 1) arrays (a trailing pair axis)."""
+    return tuple(vectors[..., k, None] for k in range(3))
+
+
 def _next_event(params, sensors, config, reference, vertex, weight, time, kind, d_in, wall_n):
     """NEE of one vertex per ray to every sensor: (N,) sums of c, c t, c t^2 (t - reference)."""
     distance, cos_in, factor = _pair_light(
         params,
         config,
-        vertex[:, None, :],
-        d_in[:, None, :],
-        wall_n[:, None, :],
+        _components(vertex),
+        _components(d_in),
+        _components(wall_n),
         kind[:, None],
-        sensors.positions[None],
-        sensors.normals[None],
+        tuple(sensors.positions[None, :, k] for k in range(3)),
+        tuple(sensors.normals[None, :, k] for k in range(3)),
     )
     solid_angle = far_solid_angle(distance, cos_in, sensors.radius)
     contribution = weight[:, None] * factor * solid_angle * params.efficiency
@@ -281,12 +300,12 @@ def _near_correction(
     distance, cos_in, factor = _pair_light(
         params,
         config,
-        vertex[:, None, :],
-        d_in[:, None, :],
-        wall_n[:, None, :],
+        _components(vertex),
+        _components(d_in),
+        _components(wall_n),
         kind[:, None],
-        positions,
-        normals,
+        tuple(positions[..., k] for k in range(3)),
+        tuple(normals[..., k] for k in range(3)),
     )
     # Pairs that cannot see each other (the disc a glass vertex lies on, discs facing
     # away) are evaluated at a harmless point and dropped, keeping gradients finite.

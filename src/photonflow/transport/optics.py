@@ -194,6 +194,15 @@ def acceptance_at_cos(table, cos_incidence):
     return value
 
 
+def dome_reflection_density_cos(cos_turn, cos_out, in_normal):
+    """``dome_reflection_density`` from cosines: u . i (``cos_turn``), u . n (``cos_out``)
+    and i . n (``in_normal``), u the outgoing and i the incoming direction, n the disc
+    normal: (u . n - i . n) / (4 pi (1 - u . i)) where u . n > i . n, else 0."""
+    valid = (cos_out > in_normal) & (cos_turn < 1.0)
+    safe = jnp.where(valid, 1.0 - cos_turn, 1.0)
+    return jnp.where(valid, (cos_out - in_normal) / (4.0 * math.pi * safe), 0.0)
+
+
 def travel_time(distance, params: Params):
     """Time (ns) for light to travel ``distance`` (m) at the group velocity c / n_g."""
     return distance * params.group_index / SPEED_OF_LIGHT
