@@ -20,7 +20,6 @@ import numpy as np
 
 from ..pytree import pytree_dataclass, static_field
 from .detector import Detector
-from .intersect import disc_hit_distance
 
 #: Extra reach (m) beyond a disc's radius: covers the gap between a disc and the
 #: curved wall behind it along rays up to ~89 degrees from the wall normal.
@@ -110,18 +109,6 @@ def grid_candidates(grid: SensorGrid, points):
     return grid.candidates[flat]
 
 
-def _nearest_of(origin, direction, indices, positions, normals, radius, t_max):
-    """Nearest front-face hit among the given sensor indices, within distance t_max."""
-    valid = indices >= 0
-    safe = jnp.where(valid, indices, 0)
-    t = jax.vmap(disc_hit_distance, in_axes=(None, None, 0, 0, 0))(
-        origin, direction, positions[safe], normals[safe], radius[safe]
-    )
-    t = jnp.where(valid & (t <= t_max), t, jnp.inf)
-    best = jnp.argmin(t)
-    return jnp.where(jnp.isfinite(t[best]), safe[best], -1), t[best]
-
-
 def first_sensor_hit(
     grid: SensorGrid | None, positions, normals, radius, origins, directions, t_wall
 ):
@@ -140,12 +127,30 @@ def first_sensor_hit(
     """
     t_max = t_wall + BASE_MARGIN
     if grid is None:
-        indices = jnp.broadcast_to(
-            jnp.arange(positions.shape[0]), origins.shape[:-1] + (positions.shape[0],)
-        )
+        n = positions.shape[0]
+        indices = jnp.broadcast_to(jnp.arange(n), origins.shape[:-1] + (n,))
     else:
         exit_points = origins + jnp.where(jnp.isfinite(t_wall), t_wall, 0.0)[..., None] * directions
         indices = grid_candidates(grid, exit_points)
-    return jax.vmap(_nearest_of, in_axes=(0, 0, 0, None, None, None, 0))(
-        origins, directions, indices, positions, normals, radius, t_max
+    valid = indices >= 0
+    safe = jnp.where(valid, indices, 0)
+    # The ray-disc test of ``intersect.disc_hit_distance`` on x, y, z components of
+    # (R, K) arrays (structure of arrays), which XLA fuses into one loop.
+    centre = [positions[:, k][safe] for k in range(3)]
+    normal = [normals[:, k][safe] for k in range(3)]
+    origin = [origins[..., k, None] for k in range(3)]
+    direction = [directions[..., k, None] for k in range(3)]
+    to_centre = [c - o for c, o in zip(centre, origin, strict=True)]
+    cos_incidence = sum(d * n for d, n in zip(direction, normal, strict=True))
+    facing = cos_incidence < 0
+    t = sum(w * n for w, n in zip(to_centre, normal, strict=True)) / jnp.where(
+        facing, cos_incidence, -1.0
     )
+    miss2 = sum((t * d - w) ** 2 for d, w in zip(direction, to_centre, strict=True))
+    r = radius[safe]
+    hit = valid & facing & (t > 0) & (miss2 <= r * r) & (t <= t_max[..., None])
+    t = jnp.where(hit, t, jnp.inf)
+    best = jnp.argmin(t, axis=-1)[..., None]
+    distance = jnp.take_along_axis(t, best, axis=-1)[..., 0]
+    index = jnp.take_along_axis(safe, best, axis=-1)[..., 0]
+    return jnp.where(jnp.isfinite(distance), index, -1).astype(jnp.int32), distance
