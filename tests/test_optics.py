@@ -9,7 +9,7 @@ import pytest
 from scipy import integrate, stats
 
 from photonflow.sources import DiffuserSource, LaserSource
-from photonflow.transport.indirect import emission_directions
+from photonflow.transport.emission import sample_directions
 from photonflow.transport.optics import (
     WATER_RAYLEIGH_ANISOTROPY,
     deflect,
@@ -120,7 +120,7 @@ def test_diffuser_emission_sampler(anisotropy):
         source = DiffuserSource(
             position=[0.0, 0, 0], n_photons=1.0, direction=axis, anisotropy=anisotropy
         )
-        directions = emission_directions(source, jnp.asarray(uniforms(6)), jnp.asarray(uniforms(7)))
+        directions = sample_directions(source, jnp.asarray(uniforms(6)), jnp.asarray(uniforms(7)))
         cos_axis = np.asarray(directions) @ axis
 
         def density(mu):
@@ -141,7 +141,7 @@ def test_laser_emission_sampler():
         source = LaserSource(
             position=[0.0, 0, 0], direction=axis, n_photons=1.0, opening_angle=alpha
         )
-        directions = emission_directions(source, jnp.asarray(uniforms(8)), jnp.asarray(uniforms(9)))
+        directions = sample_directions(source, jnp.asarray(uniforms(8)), jnp.asarray(uniforms(9)))
         cos_axis = np.asarray(directions) @ axis
         assert cos_axis.min() >= math.cos(alpha) - 1e-12
         # uniform in solid angle: cos theta uniform on [cos alpha, 1]

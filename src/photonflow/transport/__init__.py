@@ -1,13 +1,23 @@
-"""Light transport: direct light by quadrature (indirect light and sampled mode to follow)."""
+"""Light transport: direct light by quadrature, indirect light by weighted rays (expected
+mode) and photon-by-photon Monte Carlo (sampled mode), on one description of the optics
+(``optics``). See docs/transport.md."""
 
 from .direct import SPEED_OF_LIGHT, direct_light, direct_light_jit, interpolate_acceptance
+from .expected import expected
+from .optics import TransportConfig
+from .sampled import sample, sample_events, sample_photons
 from .solid_angle import disc_solid_angle, plane_basis
 
 __all__ = [
     "SPEED_OF_LIGHT",
+    "TransportConfig",
     "direct_light",
     "direct_light_jit",
     "disc_solid_angle",
+    "expected",
     "interpolate_acceptance",
     "plane_basis",
+    "sample",
+    "sample_events",
+    "sample_photons",
 ]

@@ -63,7 +63,7 @@ from ..geometry.sensor_grid import (
 from ..geometry.shapes import Shape
 from ..params import Params
 from ..pytree import pytree_dataclass
-from ..sources import DiffuserSource, LaserSource
+from .emission import sample_directions
 from .optics import (
     TransportConfig,
     acceptance_at_cos,
@@ -112,31 +112,6 @@ class IndirectLight:
     time_mean: jax.Array
     time_variance: jax.Array
     residual_weight: jax.Array
-
-
-def emission_directions(source, u1, u2):
-    """Directions (R, 3) drawn from a source's emission density from uniforms u1, u2 (R,).
-
-    Isotropic: uniform on the sphere; laser: uniform in the cone of half-angle alpha
-    (cos theta = 1 - u1 (1 - cos alpha)); diffuser: cos theta about the axis from the
-    inverse CDF of (1 + a cos theta) / 2. Reparameterised: differentiable in the
-    source's direction, opening angle and anisotropy.
-    """
-    if isinstance(source, LaserSource):
-        axis = source.direction / jnp.linalg.norm(source.direction)
-        cos_theta = 1.0 - u1 * (1.0 - jnp.cos(source.opening_angle))
-    elif isinstance(source, DiffuserSource):
-        axis = source.direction / jnp.linalg.norm(source.direction)
-        a = source.anisotropy
-        # inverse of F(mu) = (mu + 1 + a (mu^2 - 1) / 2) / 2, cancellation-free form
-        root = jnp.sqrt((1.0 - a) ** 2 + 4.0 * a * u1)
-        cos_theta = (a - 2.0 + 4.0 * u1) / (1.0 + root)
-    else:
-        axis = jnp.array([0.0, 0.0, 1.0], dtype=u1.dtype)
-        cos_theta = 1.0 - 2.0 * u1
-    cos_theta = jnp.clip(cos_theta, -1.0, 1.0)
-    axes = jnp.broadcast_to(axis, (u1.shape[0], 3))
-    return deflect(axes, cos_theta, 2.0 * math.pi * u2)
 
 
 def _safe_sqrt(x):
@@ -369,7 +344,7 @@ def indirect_light_jit(
     has_walls = shape.has_walls
     emit_key, vertex_key = jax.random.split(key)
     u_emit = jax.random.uniform(emit_key, (2, n_rays), dtype=dtype)
-    directions = emission_directions(source, u_emit[0], u_emit[1])
+    directions = sample_directions(source, u_emit[0], u_emit[1])
     origins = jnp.broadcast_to(source.position, (n_rays, 3))
     weight = jnp.broadcast_to(source.n_photons / n_rays, (n_rays,)).astype(dtype)
     time = jnp.broadcast_to(source.time, (n_rays,)).astype(dtype)
@@ -404,14 +379,12 @@ def indirect_light_jit(
         zeros = tuple(jnp.zeros(n, dtype=dtype) for _ in range(3))
         return jax.lax.scan(accumulate, zeros, blocks)[0]
 
-    def step(carry, order):
-        origins, directions, weight, time, specular = carry
-        u = jax.random.uniform(
-            jax.random.fold_in(vertex_key, order), (_UNIFORMS_PER_VERTEX, n_rays), dtype=dtype
-        )
+    def trace_segment(origins, directions, weight, time, specular):
+        """Trace one segment per ray: its end, the sensor it reaches, the weight of rays
+        still inside, and the delta detections of segments after a specular vertex."""
         t_end, index, hit, alive = _trace(shape, grid, sensors, origins, directions)
         weight = jnp.where(alive, weight, 0.0)
-        delta = _detect_on_segment(
+        detected = _detect_on_segment(
             params,
             sensors,
             weight,
@@ -421,6 +394,16 @@ def indirect_light_jit(
             index,
             specular & hit,
             n,
+        )
+        return t_end, index, hit, weight, detected
+
+    def step(carry, order):
+        origins, directions, weight, time, specular = carry
+        u = jax.random.uniform(
+            jax.random.fold_in(vertex_key, order), (_UNIFORMS_PER_VERTEX, n_rays), dtype=dtype
+        )
+        t_end, index, hit, weight, delta = trace_segment(
+            origins, directions, weight, time, specular
         )
         # next vertex: bulk scatter (proposal 1/2, uniform in [0, t_end]) or segment end
         scatter = u[0] < 0.5
@@ -483,19 +466,7 @@ def indirect_light_jit(
     orders = jnp.arange(1, config.n_bounces + 1)
     carry, (delta, detected) = jax.lax.scan(step, carry, orders)
     origins, directions, weight, time, specular = carry
-    t_end, index, hit, alive = _trace(shape, grid, sensors, origins, directions)
-    weight = jnp.where(alive, weight, 0.0)
-    last = _detect_on_segment(
-        params,
-        sensors,
-        weight,
-        time - reference_time[index],
-        directions,
-        t_end,
-        index,
-        specular & hit,
-        n,
-    )
+    t_end, index, hit, weight, last = trace_segment(origins, directions, weight, time, specular)
     residual = _residual(params, has_walls, weight, t_end, hit)
     # delta detections of step k + 1 belong to order k (the vertex the segment starts at)
     delta = [jnp.concatenate([d[1:], l[None]], axis=0) for d, l in zip(delta, last, strict=True)]
