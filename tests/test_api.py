@@ -3,6 +3,7 @@
 import inspect
 
 import numpy as np
+import pytest
 
 import photonflow as pf
 
@@ -16,8 +17,31 @@ def test_top_level_names():
         "Event",
         "read_events",
         "write_events",
+        "IsotropicSource",
+        "LaserSource",
+        "expected",
+        "sample",
+        "nll",
     ):
         assert hasattr(pf, name), name
+
+
+def test_nll_contract_needs_only_prediction_and_event():
+    """``nll(prediction, event)`` (issue 3): the prediction carries its response settings;
+    a prediction without them is refused in one line."""
+    detector = pf.load_detector("TOY_SPHERE")
+    params = pf.default_params(detector)
+    source = pf.IsotropicSource(position=[0.2, 0.0, 0.0], n_photons=1e4)
+    event = pf.sample(detector, params, source, seed=2)
+    prediction = pf.expected(detector, params, source)
+    value = float(pf.nll(prediction, event))
+    explicit = float(pf.nll(prediction, event, params, window=prediction.window))
+    assert np.isfinite(value) and value == explicit
+    bare = pf.Prediction.from_components(
+        prediction.charge, prediction.time_weight, prediction.time_mean, prediction.time_sigma
+    )
+    with pytest.raises(pf.ConfigError, match="nll: no"):
+        pf.nll(bare, event)
 
 
 def test_presets_returns_rows_by_name():

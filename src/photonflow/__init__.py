@@ -10,7 +10,11 @@ from .errors import ConfigError, EventFileError, PhotonflowError, SensorFileErro
 from .geometry import Box, Cylinder, Detector, OpenMedium, Sphere, make_detector
 from .geometry.presets import preset_table
 from .io import Event, EventFile, Truth, read_events, write_events
+from .likelihood import nll, sensor_nll
 from .params import Params, default_params
+from .prediction import Prediction
+from .sources import DiffuserSource, IsotropicSource, LaserSource
+from .transport import TransportConfig, expected, sample, sample_events
 
 
 def presets() -> dict[str, dict[str, object]]:
@@ -22,6 +26,16 @@ def presets() -> dict[str, dict[str, object]]:
 
 __all__ = [
     "Box",
+    "DiffuserSource",
+    "IsotropicSource",
+    "LaserSource",
+    "Prediction",
+    "TransportConfig",
+    "expected",
+    "nll",
+    "sample",
+    "sample_events",
+    "sensor_nll",
     "ConfigError",
     "Cylinder",
     "Detector",

@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.special import gammaln, log_ndtr, ndtr
 
+from .errors import ConfigError
 from .io.events import Event
 from .params import Params
 from .prediction import Prediction
@@ -230,8 +231,12 @@ def dark_expectation(params: Params, window: tuple[float, float]) -> jax.Array:
         params: detector parameters (``dark_rate`` in Hz).
         window: readout window (t0, t1), ns.
     """
+    return _dark_mean(params.dark_rate, window)
+
+
+def _dark_mean(dark_rate, window: tuple[float, float]):
     t0, t1 = window
-    return params.dark_rate * ((t1 - t0) * 1e-9) + DARK_FLOOR
+    return dark_rate * ((t1 - t0) * 1e-9) + DARK_FLOOR
 
 
 def first_hit_logpdf(
@@ -264,12 +269,26 @@ def _dense_hits(event: Event, n: int, dtype) -> tuple[jax.Array, jax.Array, jax.
     return hit, q, jnp.where(hit, t, 0.0)
 
 
+def _response(prediction: Prediction, params: Params | None, window):
+    """(dark_rate Hz, spe_width p.e., window ns) from ``params``/``window`` if given,
+    else from the prediction; a one-line ``ConfigError`` if neither has them."""
+    source = params if params is not None else prediction
+    dark_rate, spe_width = source.dark_rate, source.spe_width
+    window = prediction.window if window is None else window
+    if dark_rate is None or spe_width is None or window is None:
+        missing = "window" if window is None else "params"
+        raise ConfigError(
+            f"nll: no {missing}; pass params= and window= or a Prediction from expected()"
+        )
+    return dark_rate, spe_width, tuple(window)
+
+
 def sensor_nll(
     prediction: Prediction,
     event: Event,
-    params: Params,
+    params: Params | None = None,
     *,
-    window: tuple[float, float],
+    window: tuple[float, float] | None = None,
     charge_threshold: float | None = None,
     use_time: bool = True,
 ) -> jax.Array:
@@ -279,8 +298,10 @@ def sensor_nll(
         prediction: expected signal p.e. per sensor and arrival-time mixture (ns).
         event: recorded hits; several hits on one sensor are merged (charges summed,
             earliest time kept). Sensor ids must lie in [0, N).
-        params: detector parameters (``dark_rate`` Hz and ``spe_width`` p.e. are used).
-        window: readout window (t0, t1), ns (static Python floats).
+        params: detector parameters (``dark_rate`` Hz and ``spe_width`` p.e. are used);
+            default: the ones stored in the prediction by ``expected``.
+        window: readout window (t0, t1), ns (static Python floats); default: the
+            prediction's.
         charge_threshold: discriminator threshold, p.e. (None: every hit is recorded).
             Hits below it are taken as not recorded, which the unhit term accounts for.
         use_time: include the first-hit time density (False: charge only).
@@ -294,9 +315,10 @@ def sensor_nll(
     n = mu_s.shape[0]
     dtype = mu_s.dtype
     hit, q, t = _dense_hits(event, n, dtype)
-    mu_dark = dark_expectation(params, window).astype(dtype)
+    dark_rate, spe_width, window = _response(prediction, params, window)
+    mu_dark = jnp.asarray(_dark_mean(dark_rate, window), dtype=dtype)
     mu = mu_s + mu_dark
-    width = jnp.asarray(params.spe_width, dtype=dtype)
+    width = jnp.asarray(spe_width, dtype=dtype)
 
     log_hit = log1mexp(mu)
     log_hit = log_hit + charge_logpdf(q, mu, width)
@@ -313,9 +335,9 @@ def sensor_nll(
 def nll(
     prediction: Prediction,
     event: Event,
-    params: Params,
+    params: Params | None = None,
     *,
-    window: tuple[float, float],
+    window: tuple[float, float] | None = None,
     charge_threshold: float | None = None,
     use_time: bool = True,
 ) -> jax.Array:

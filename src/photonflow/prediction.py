@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.special import ndtr
 
-from .pytree import pytree_dataclass
+from .pytree import pytree_dataclass, static_field
 
 _HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 
@@ -32,6 +32,11 @@ class Prediction:
         residual_weight: scalar, expected number of photons (not p.e.) still alive when
             the transport stopped at its bounce cap, i.e. light that was not followed
             (0 for a prediction without truncated transport).
+        dark_rate: dark-noise rate per sensor, Hz, and ``spe_width`` the single-p.e.
+            width, p.e.: the sensor-response parameters the prediction was made with
+            (``expected`` fills them from ``Params``), so that ``nll(prediction, event)``
+            needs nothing else; None when not known.
+        window: readout window (t0, t1), ns (static), or None.
     """
 
     charge: jax.Array
@@ -39,6 +44,9 @@ class Prediction:
     time_mean: jax.Array
     time_sigma: jax.Array
     residual_weight: jax.Array = 0.0
+    dark_rate: jax.Array | None = None
+    spe_width: jax.Array | None = None
+    window: tuple[float, float] | None = static_field(default=None)
 
     @property
     def n_sensors(self) -> int:

@@ -139,4 +139,7 @@ def expected_jit(
         time_mean=means,
         time_sigma=sigmas,
         residual_weight=indirect.residual_weight,
+        dark_rate=params.dark_rate,
+        spe_width=params.spe_width,
+        window=tuple(float(x) for x in config.window),
     )
