@@ -90,7 +90,9 @@ def calibration_run_step(name: str) -> Step:
 
         from .config import load_setup
         from .io import read_events, write_events
+        from .likelihood import dark_expectation
         from .sources import IsotropicSource
+        from .spe import single_pe_moments
         from .transport.expected import expected
         from .transport.optics import TransportConfig
         from .transport.sampled import sample_events
@@ -111,11 +113,14 @@ def calibration_run_step(name: str) -> Step:
         prediction = expected(
             setup.detector, setup.params, source, config=config, key=jax.random.key(0)
         )
-        mean_pe = float(np.sum(prediction.charge))
+        # expected total charge: (signal + dark p.e.) x mean single-p.e. charge
+        mean_one, _ = single_pe_moments(setup.params.spe_width)
+        dark = dark_expectation(setup.params, config.window) * setup.detector.n_sensors
+        expected_charge = float((np.sum(prediction.charge) + dark) * mean_one)
         return StepResult(
             f"{CALIBRATION_EVENTS} flashes of {CALIBRATION_PHOTONS:.0e} photons in {name}:"
-            f" {np.mean(charges):,.0f} p.e. per event sampled (incl. dark noise),"
-            f" {mean_pe:,.0f} p.e. expected; event display in {picture}",
+            f" total charge {np.mean(charges):,.0f} p.e. per event sampled,"
+            f" {expected_charge:,.0f} expected; event display in {picture}",
             (path, picture),
         )
 
