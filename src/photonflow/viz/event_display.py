@@ -11,7 +11,7 @@ import math
 import os
 
 import numpy as np
-from matplotlib.colors import LogNorm
+from matplotlib.colors import LogNorm, Normalize
 from matplotlib.figure import Figure
 
 from ..geometry.detector import Detector
@@ -96,7 +96,16 @@ def plot_event(
         if positive.size and positive.max() > positive.min():
             norm = LogNorm(vmin=max(positive.min(), 1e-2), vmax=positive.max())
         draw_wall(figure, axes[0], detector, projected, charge, "charge (p.e.)", "viridis", norm)
-        draw_wall(figure, axes[1], detector, projected, time, "first-hit time (ns)", "plasma")
+        # Dark-noise hits spread over the whole readout window: colour times by their
+        # 2nd-98th percentile range so that the light's arrival pattern stays visible.
+        finite = time[np.isfinite(time)]
+        time_norm = None
+        if finite.size > 1:
+            low, high = np.percentile(finite, [2.0, 98.0])
+            if high > low:
+                time_norm = Normalize(vmin=low, vmax=high)
+        draw_wall(figure, axes[1], detector, projected, time, "first-hit time (ns)", "plasma",
+                  time_norm)
         axes[0].set_title("charge", fontsize=10)
         axes[1].set_title("time", fontsize=10)
         point = truth_wall_point(detector, event)
