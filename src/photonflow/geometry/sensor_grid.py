@@ -20,6 +20,7 @@ import numpy as np
 
 from ..pytree import pytree_dataclass, static_field
 from .detector import Detector
+from .intersect import disc_hit_distance_xyz
 
 #: Extra reach (m) beyond a disc's radius: covers the gap between a disc and the
 #: curved wall behind it along rays up to ~89 degrees from the wall normal.
@@ -134,22 +135,15 @@ def first_sensor_hit(
         indices = grid_candidates(grid, exit_points)
     valid = indices >= 0
     safe = jnp.where(valid, indices, 0)
-    # The ray-disc test of ``intersect.disc_hit_distance`` on x, y, z components of
-    # (R, K) arrays (structure of arrays), which XLA fuses into one loop.
-    centre = [positions[:, k][safe] for k in range(3)]
-    normal = [normals[:, k][safe] for k in range(3)]
-    origin = [origins[..., k, None] for k in range(3)]
-    direction = [directions[..., k, None] for k in range(3)]
-    to_centre = [c - o for c, o in zip(centre, origin, strict=True)]
-    cos_incidence = sum(d * n for d, n in zip(direction, normal, strict=True))
-    facing = cos_incidence < 0
-    t = sum(w * n for w, n in zip(to_centre, normal, strict=True)) / jnp.where(
-        facing, cos_incidence, -1.0
+    # The ray-disc test on x, y, z components of (R, K) arrays (one fused loop in XLA).
+    t = disc_hit_distance_xyz(
+        [origins[..., k, None] for k in range(3)],
+        [directions[..., k, None] for k in range(3)],
+        [positions[:, k][safe] for k in range(3)],
+        [normals[:, k][safe] for k in range(3)],
+        radius[safe],
     )
-    miss2 = sum((t * d - w) ** 2 for d, w in zip(direction, to_centre, strict=True))
-    r = radius[safe]
-    hit = valid & facing & (t > 0) & (miss2 <= r * r) & (t <= t_max[..., None])
-    t = jnp.where(hit, t, jnp.inf)
+    t = jnp.where(valid & (t <= t_max[..., None]), t, jnp.inf)
     best = jnp.argmin(t, axis=-1)[..., None]
     distance = jnp.take_along_axis(t, best, axis=-1)[..., 0]
     index = jnp.take_along_axis(safe, best, axis=-1)[..., 0]
