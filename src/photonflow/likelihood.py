@@ -60,20 +60,33 @@ def log1mexp(mu: jax.Array) -> jax.Array:
 
 
 def _charge_mixture(
+    q: jax.Array,
     mu: jax.Array,
     spe_width: jax.Array,
-    poisson_kernel: Callable[[jax.Array, jax.Array], jax.Array],
-    gauss_kernel: Callable[[jax.Array, jax.Array], jax.Array],
+    one_photoelectron: Callable[[jax.Array, jax.Array], jax.Array],
+    normal: Callable[[jax.Array, jax.Array, jax.Array], jax.Array],
     n_terms: int,
     mu_switch: float,
     blend: float,
 ) -> jax.Array:
-    """Log of E[kernel(n) | n >= 1] for n ~ Poisson(mu), blended into a Gaussian kernel.
+    """Log of E[kernel(q | n) | n >= 1] for n ~ Poisson(mu), blended into a Gaussian.
 
-    ``poisson_kernel(n, mean_n, sigma_n)`` and ``gauss_kernel(mean, sd)`` return log
-    values; the single-p.e. charge is the truncated normal of ``photonflow.spe`` (exact
-    for n = 1, a moment-matched normal for n >= 2).
+    The kernel of one photoelectron is ``one_photoelectron(q, w)`` (the exact truncated
+    normal of ``photonflow.spe``); for n >= 2 and in the Gaussian branch it is
+    ``normal(q, mean, sd)`` with the n-fold mean and variance. Both return log values
+    (densities for ``charge_logpdf``, cumulatives for ``charge_logcdf``).
     """
+    q, mu = jnp.broadcast_arrays(jnp.asarray(q), jnp.asarray(mu))
+    spe_width = jnp.broadcast_to(jnp.asarray(spe_width, dtype=mu.dtype), mu.shape)
+    q = q.astype(mu.dtype)
+
+    def poisson_kernel(n, mean_n, sigma_n):
+        one = one_photoelectron(q[..., None], spe_width[..., None])
+        return jnp.where(n == 1, one, normal(q[..., None], mean_n, sigma_n))
+
+    def gauss_kernel(mean, sd):
+        return normal(q, mean, sd)
+
     tiny = jnp.finfo(mu.dtype).tiny
     lo, hi = mu_switch - blend, mu_switch + blend
     s = jnp.clip((mu - lo) / (hi - lo), 0.0, 1.0)
@@ -103,6 +116,10 @@ def _charge_mixture(
     s_mid = jnp.where(poisson_only | gauss_only, 0.5, s)
     mixed = jnp.logaddexp(jnp.log1p(-s_mid) + log_poisson, jnp.log(s_mid) + log_gauss)
     return jnp.where(poisson_only, log_poisson, jnp.where(gauss_only, log_gauss, mixed))
+
+
+def _normal_logcdf(x: jax.Array, mean: jax.Array, sd: jax.Array) -> jax.Array:
+    return log_ndtr((x - mean) / sd)
 
 
 def _normal_logpdf(x: jax.Array, mean: jax.Array, sd: jax.Array) -> jax.Array:
@@ -148,22 +165,8 @@ def charge_logpdf(
         mu_switch: centre of the blend into the Gaussian approximation, p.e. (static).
         blend: half-width of the blend, p.e. (static).
     """
-    q, mu = jnp.broadcast_arrays(jnp.asarray(q), jnp.asarray(mu))
-    width = jnp.broadcast_to(jnp.asarray(spe_width, dtype=mu.dtype), mu.shape)
-    q = q.astype(mu.dtype)
-
-    def kernel(n, mean_n, sigma_n):
-        one = _truncated_logpdf(q[..., None], width[..., None])
-        return jnp.where(n == 1, one, _normal_logpdf(q[..., None], mean_n, sigma_n))
-
     return _charge_mixture(
-        mu,
-        width,
-        kernel,
-        lambda mean, sd: _normal_logpdf(q, mean, sd),
-        n_terms,
-        mu_switch,
-        blend,
+        q, mu, spe_width, _truncated_logpdf, _normal_logpdf, n_terms, mu_switch, blend
     )
 
 
@@ -179,25 +182,12 @@ def charge_logcdf(
     """``log P(charge < q | mu, n >= 1)`` (the cumulative of ``charge_logpdf``).
 
     Args:
-        q: charge, p.e.; mu: expected p.e. (> 0); spe_width: sigma / mean, p.e.
+        q: charge, p.e.; mu: expected p.e. (> 0); spe_width: width w of the
+            single-p.e. charge Normal(1, w) truncated at 0, p.e.
         n_terms, mu_switch, blend: as in ``charge_logpdf`` (static).
     """
-    q, mu = jnp.broadcast_arrays(jnp.asarray(q), jnp.asarray(mu))
-    width = jnp.broadcast_to(jnp.asarray(spe_width, dtype=mu.dtype), mu.shape)
-    q = q.astype(mu.dtype)
-
-    def kernel(n, mean_n, sigma_n):
-        one = _truncated_logcdf(q[..., None], width[..., None])
-        return jnp.where(n == 1, one, log_ndtr((q[..., None] - mean_n) / sigma_n))
-
     return _charge_mixture(
-        mu,
-        width,
-        kernel,
-        lambda mean, sd: log_ndtr((q - mean) / sd),
-        n_terms,
-        mu_switch,
-        blend,
+        q, mu, spe_width, _truncated_logcdf, _normal_logcdf, n_terms, mu_switch, blend
     )
 
 

@@ -64,7 +64,7 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("efficiency", "", "positive", "relative efficiency of each sensor", per_sensor=True),
     ParamSpec("time_offset", "ns", "real", "time offset of each sensor", per_sensor=True),
     ParamSpec("tts", "ns", "positive", "transit-time spread (Gaussian sigma)"),
-    ParamSpec("spe_width", "p.e.", "positive", "single-p.e. charge width (sigma / mean)"),
+    ParamSpec("spe_width", "p.e.", "positive", "single-p.e. charge width w: Normal(1, w) > 0"),
     ParamSpec("dark_rate", "Hz", "positive", "dark-noise rate per sensor"),
     ParamSpec(
         "angular_acceptance",
@@ -97,7 +97,8 @@ class Params:
         efficiency: (N,) relative efficiency of each sensor (1 = nominal).
         time_offset: (N,) time offset of each sensor, ns.
         tts: transit-time spread, Gaussian sigma, ns.
-        spe_width: single-p.e. charge width, sigma / mean, p.e.
+        spe_width: width w of the single-p.e. charge Normal(1, w) truncated at 0, p.e.
+            (``photonflow.spe``).
         dark_rate: dark-noise rate per sensor, Hz.
         angular_acceptance: (10,) relative acceptance at incidence angles 0, 10, ..., 90
             degrees (all ones = flat).

@@ -34,7 +34,7 @@ class SensorModel:
         radius: photocathode disc radius, m.
         quantum_efficiency: detection efficiency at the reference wavelength (0-1).
         tts: transit-time spread, Gaussian sigma at 1 p.e., ns.
-        spe_width: single-p.e. charge width, sigma / mean (p.e.).
+        spe_width: width w of the single-p.e. charge Normal(1, w) truncated at 0, p.e.
         dark_rate: dark-noise rate, Hz.
         notes: sources of the numbers.
     """

@@ -21,7 +21,7 @@ _HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 
 @pytree_dataclass
 class Prediction:
-    """Expected signal per sensor (every field a JAX array leaf).
+    """Expected signal per sensor (array fields are JAX leaves; ``window`` is static).
 
     Attributes:
         charge: (N,) expected number of signal photoelectrons per sensor, p.e.
