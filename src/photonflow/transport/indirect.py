@@ -29,9 +29,12 @@ from the source's emission density. Per segment from the current vertex:
    Omega_j = cos_in 2 pi r^2 / (R (R + d)), R = sqrt(d^2 + r^2): the on-axis disc
    solid angle tilted by cos_in (far field pi r^2 cos_in / d^2, bounded by 2 pi near
    the disc);
-5. continue: after a scatter Rayleigh or Mie is chosen with probability 1/2 each and the
-   direction drawn from it, weight x (rate_R p_R + rate_M p_HG) / (p_R / 2 + p_HG / 2)
-   (one-sample mixture importance sampling; the choice never depends on parameters);
+5. continue: after a scatter the new direction is drawn with probability 1/2 each from
+   the Rayleigh phase function or from a Henyey-Greenstein proposal of fixed asymmetry
+   g_q (``config.mie_proposal_asymmetry``), weight x (rate_R p_R + rate_M p_HG(g)) /
+   (p_R / 2 + p_HG(g_q) / 2) (one-sample mixture importance sampling); no proposal
+   depends on ``Params``, so the rays' geometry is fixed by the key and the source, and
+   parameters enter only through weights and times (cheap gradients, smooth results);
    after a wall vertex specular (proposal 1/2, weight x R_w f_s / 0.5) or Lambertian
    (weight x R_w (1 - f_s) / 0.5); after the sensor glass, mirrored about the dome
    normal where the ray crossed the disc, weight x R_s.
@@ -351,6 +354,7 @@ def indirect_light_jit(
     specular = jnp.zeros(n_rays, dtype=bool)
     rate_abs, rate_rayleigh, rate_mie, rate_total = interaction_rates(params)
     anisotropy = config.rayleigh_anisotropy
+    proposal_g = jnp.asarray(config.mie_proposal_asymmetry, dtype)
     far = functools.partial(_next_event, params, sensors, config, reference_time)
     near = None
     if near_grid is not None:
@@ -424,12 +428,13 @@ def indirect_light_jit(
         cos_theta = jnp.where(
             rayleigh,
             sample_rayleigh_cos(u[3], anisotropy),
-            sample_henyey_greenstein_cos(u[3], params.mie_g),
+            sample_henyey_greenstein_cos(u[3], proposal_g),
         )
         p_rayleigh = rayleigh_density(cos_theta, anisotropy)
+        p_proposal = henyey_greenstein_density(cos_theta, proposal_g)
         p_mie = henyey_greenstein_density(cos_theta, params.mie_g)
         scatter_weight = (rate_rayleigh * p_rayleigh + rate_mie * p_mie) / (
-            0.5 * p_rayleigh + 0.5 * p_mie
+            0.5 * p_rayleigh + 0.5 * p_proposal
         )
         scatter_direction = deflect(directions, cos_theta, 2.0 * math.pi * u[4])
         mirror = u[5] < 0.5

@@ -51,6 +51,12 @@ class TransportConfig:
         window: readout window (start, end) in ns relative to the source time.
         charge_threshold: hits below this charge (p.e.) are not recorded.
         batch_size: photons processed at once in sampled mode (bounds memory).
+        mie_proposal_asymmetry: Henyey-Greenstein g of the fixed proposal from which
+            the expected mode draws half of its scattered directions (the other half
+            from the Rayleigh phase function). The proposal never depends on
+            ``Params``, so the rays' paths do not move when a parameter changes and
+            ``Params.mie_g`` enters only through the weights; a value near the medium's
+            ``mie_g`` keeps the weights' variance low.
     """
 
     n_bounces: int = 2
@@ -59,6 +65,7 @@ class TransportConfig:
     window: tuple[float, float] = (-100.0, 900.0)
     charge_threshold: float = 0.0
     batch_size: int = 1 << 17
+    mie_proposal_asymmetry: float = 0.4
 
 
 def interaction_rates(params: Params):
