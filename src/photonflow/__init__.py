@@ -7,6 +7,7 @@ Units everywhere: metres, nanoseconds, MeV, radians; wavelength in nm.
 from ._version import __version__
 from .config import load_config, load_detector
 from .errors import ConfigError, EventFileError, PhotonflowError, SensorFileError
+from .generator import Photons, Track, generate
 from .geometry import Box, Cylinder, Detector, OpenMedium, Sphere, make_detector
 from .geometry.presets import preset_table
 from .io import Event, EventFile, Truth, read_events, write_events
@@ -29,7 +30,10 @@ __all__ = [
     "DiffuserSource",
     "IsotropicSource",
     "LaserSource",
+    "Photons",
     "Prediction",
+    "Track",
+    "generate",
     "TransportConfig",
     "expected",
     "nll",
