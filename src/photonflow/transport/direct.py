@@ -3,19 +3,21 @@
 For a source at p and sensor j (disc centre c_j, inward normal n_j, radius r_j), with
 d_j = |c_j - p| and the unit direction w_j = (c_j - p) / d_j:
 
-    mu_j = N x S(w_j) x Omega_j x QE x eff_j x A(theta_j)
-           x exp(-d_j / L_abs - d_j / L_scat - d_j / L_mie)
+    mu_j = N x F_j x QE x eff_j x A(theta_j) x exp(-d_j / L_abs - d_j / L_scat - d_j / L_mie)
     t_j  = t_source + d_j n_g / c + offset_j
 
-N photons emitted, S the source's emission density (photons / sr / photon), Omega_j
-the exact solid angle of the disc (``disc_solid_angle``), QE the global quantum
-efficiency, eff_j the sensor's relative efficiency, A the angular acceptance
-interpolated (``optics.acceptance_at_cos``, linear in cos theta) at the incidence
-theta_j = angle(-w_j, n_j) from the table at 0, 10, ..., 90 degrees, the exponential the
-survival probability without absorption and without any scattering, n_g the group
-index and c = 0.299792458 m/ns. Only sensors whose front face sees the source
-(cos theta_j > 0) receive light. S and A are evaluated at the disc centre (exact for
-the isotropic source and a flat acceptance; otherwise accurate to order (r/d)^2).
+N photons emitted, F_j the fraction of them emitted towards the disc, i.e. the source's
+emission density integrated exactly over the disc's solid angle
+(``solid_angle.emission_weighted_solid_angle``: Omega_j / 4 pi for the isotropic source,
+a rim integral for the diffuser's cos theta term and for the part of the disc inside a
+laser's cone, so a sensor on the cone's edge gets its partial light, smoothly), QE the
+global quantum efficiency, eff_j the sensor's relative efficiency, A the angular
+acceptance interpolated (``optics.acceptance_at_cos``, linear in cos theta) at the
+incidence theta_j = angle(-w_j, n_j) from the table at 0, 10, ..., 90 degrees, the
+exponential the survival probability without absorption and without any scattering, n_g
+the group index and c = 0.299792458 m/ns. Only sensors whose front face sees the source
+(cos theta_j > 0) receive light. A and the attenuation are evaluated at the disc centre
+(exact for a flat acceptance and to order (r/d)^2 otherwise).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import jax.numpy as jnp
 from ..geometry.detector import Detector
 from ..params import Params
 from .optics import acceptance_at_cos
-from .solid_angle import DEFAULT_NODES, disc_solid_angle
+from .solid_angle import emission_weighted_solid_angle
 
 #: Speed of light in vacuum, m/ns.
 SPEED_OF_LIGHT = 0.299792458
@@ -84,7 +86,7 @@ def direct_light_jit(sensor_positions, sensor_normals, sensor_radius, params: Pa
     cos_incidence = -jnp.sum(direction * normals, axis=-1)
     facing = cos_incidence > 0
 
-    solid_angle = disc_solid_angle(source.position, centres, normals, radii, n_nodes=DEFAULT_NODES)
+    fraction = emission_weighted_solid_angle(source, centres, normals, radii)
     attenuation = jnp.exp(
         -distance
         * (
@@ -96,8 +98,7 @@ def direct_light_jit(sensor_positions, sensor_normals, sensor_radius, params: Pa
     acceptance = acceptance_at_cos(params.angular_acceptance, cos_incidence)
     mu = (
         source.n_photons
-        * source.emission_density(direction)
-        * solid_angle
+        * fraction
         * params.quantum_efficiency
         * params.efficiency
         * acceptance

@@ -83,7 +83,7 @@ from .optics import (
     specular_direction,
     travel_time,
 )
-from .solid_angle import disc_solid_angle
+from .solid_angle import disc_solid_angle_local
 
 #: Uniform random numbers drawn per ray and vertex.
 _UNIFORMS_PER_VERTEX = 8
@@ -240,8 +240,12 @@ def _components(vectors):
     return tuple(vectors[..., k, None] for k in range(3))
 
 
-def _next_event(params, sensors, config, reference, vertex, weight, time, kind, d_in, wall_n):
-    """NEE of one vertex per ray to every sensor: (N,) sums of c, c t, c t^2 (t - reference)."""
+def _next_event(
+    params, sensors, config, reference, vertex, weight, time, kind, d_in, wall_n, own_disc
+):
+    """NEE of one vertex per ray to every sensor: (N,) sums of c, c t, c t^2 (t - reference).
+
+    ``own_disc`` (R,) is the sensor each vertex leaves out (N for none)."""
     distance, cos_in, factor = _pair_light(
         params,
         config,
@@ -252,8 +256,11 @@ def _next_event(params, sensors, config, reference, vertex, weight, time, kind, 
         tuple(sensors.positions[None, :, k] for k in range(3)),
         tuple(sensors.normals[None, :, k] for k in range(3)),
     )
+    n = sensors.positions.shape[0]
     solid_angle = far_solid_angle(distance, cos_in, sensors.radius)
     contribution = weight[:, None] * factor * solid_angle * params.efficiency
+    own = own_disc[:, None] == jnp.arange(n, dtype=own_disc.dtype)
+    contribution = jnp.where(own, 0.0, contribution)
     relative = time[:, None] + travel_time(distance, params) + params.time_offset - reference
     return (
         jnp.sum(contribution, axis=0),
@@ -263,11 +270,12 @@ def _next_event(params, sensors, config, reference, vertex, weight, time, kind, 
 
 
 def _near_correction(
-    params, sensors, config, reference, near_grid, vertex, weight, time, kind, d_in, wall_n
+    params, sensors, config, reference, near_grid, vertex, weight, time, kind, d_in, wall_n,
+    own_disc,
 ):
     """Exact-minus-far solid-angle correction of the NEE for the sensors near each vertex
     (the candidates of ``near_grid``, which lists every sensor within 4 radii): (N,) sums
-    of c, c t, c t^2 like ``_next_event``."""
+    of c, c t, c t^2 like ``_next_event``; ``own_disc`` (R,) gets none."""
     n = sensors.positions.shape[0]
     candidates = grid_candidates(near_grid, vertex)  # (R, K)
     valid = candidates >= 0
@@ -285,14 +293,15 @@ def _near_correction(
         tuple(positions[..., k] for k in range(3)),
         tuple(normals[..., k] for k in range(3)),
     )
-    # Pairs that cannot see each other (the disc a glass vertex lies on, discs facing
-    # away) are evaluated at a harmless point and dropped, keeping gradients finite.
+    # Pairs that cannot see each other (discs facing away, the disc a glass vertex lies
+    # on) are evaluated at a harmless point and dropped, keeping gradients finite.
     seen = valid & (cos_in > 1e-6)
-    viewpoint = jnp.where(seen[..., None], vertex[:, None, :], positions + normals)
-    exact = jax.vmap(
-        jax.vmap(lambda v, c, nrm, r: disc_solid_angle(v, c, nrm, r, n_nodes=NEAR_NODES))
-    )(viewpoint, positions, normals, radius)
-    delta = jnp.where(seen, exact - far_solid_angle(distance, cos_in, radius), 0.0)
+    left_out = candidates == own_disc[:, None]
+    from_centre = jnp.where(seen[..., None], vertex[:, None, :] - positions, normals)
+    height = jnp.abs(jnp.sum(from_centre * normals, axis=-1))
+    in_plane_sq = jnp.maximum(jnp.sum(from_centre * from_centre, axis=-1) - height**2, 0.0)
+    exact = disc_solid_angle_local(in_plane_sq, height, radius, NEAR_NODES)
+    delta = jnp.where(seen & ~left_out, exact - far_solid_angle(distance, cos_in, radius), 0.0)
     contribution = weight[:, None] * factor * delta * params.efficiency[index]
     relative = (
         time[:, None] + travel_time(distance, params) + params.time_offset[index] - reference[index]
@@ -422,7 +431,10 @@ def indirect_light_jit(
         normal = jnp.where((kind == _GLASS)[:, None], glass_normal, wall_normal)
         if not has_walls:
             weight = jnp.where(kind == _WALL, 0.0, weight)
-        detected = nee(vertex, weight, time, kind, directions, normal)
+        # a glass vertex never lights its own disc: it lies in the disc's plane, but
+        # rounding can tilt it into view, where the exact solid angle is ~2 pi
+        own_disc = jnp.where(kind == _GLASS, index, n)
+        detected = nee(vertex, weight, time, kind, directions, normal, own_disc)
         # continuation
         rayleigh = u[2] < 0.5
         cos_theta = jnp.where(
