@@ -21,6 +21,7 @@ import numpy as np
 from ..pytree import pytree_dataclass, static_field
 from .detector import Detector
 from .intersect import disc_hit_distance_xyz
+from .shapes import xyz
 
 #: Extra reach (m) beyond a disc's radius: covers the gap between a disc and the
 #: curved wall behind it along rays up to ~89 degrees from the wall normal.
@@ -103,11 +104,17 @@ def build_sensor_grid(
 
 def grid_candidates(grid: SensorGrid, points):
     """Candidate sensor indices (..., K) (-1 padded) for points (..., 3) in m."""
-    cell = jnp.floor((points - grid.origin.astype(points.dtype)) / grid.cell_size)
-    dims = jnp.asarray(grid.dims, dtype=jnp.int32)
-    cell = jnp.clip(cell.astype(jnp.int32), 0, dims - 1)
-    flat = (cell[..., 0] * grid.dims[1] + cell[..., 1]) * grid.dims[2] + cell[..., 2]
-    return grid.candidates[flat]
+    return grid_candidates_xyz(grid, xyz(points))
+
+
+def grid_candidates_xyz(grid: SensorGrid, points):
+    """``grid_candidates`` for points given as x, y, z components, each (...,) in m."""
+    origin = grid.origin.astype(points[0].dtype)
+    cells = [
+        jnp.clip(jnp.floor((p - origin[k]) / grid.cell_size).astype(jnp.int32), 0, n - 1)
+        for k, (p, n) in enumerate(zip(points, grid.dims, strict=True))
+    ]
+    return grid.candidates[(cells[0] * grid.dims[1] + cells[1]) * grid.dims[2] + cells[2]]
 
 
 def first_sensor_hit(
@@ -126,19 +133,33 @@ def first_sensor_hit(
     Returns:
         ``(sensor_index (R,) int32 or -1, distance (R,) m or inf)``.
     """
+    return first_sensor_hit_xyz(
+        grid, positions, normals, radius, xyz(origins), xyz(directions), t_wall
+    )
+
+
+def first_sensor_hit_xyz(
+    grid: SensorGrid | None, positions, normals, radius, origins, directions, t_wall
+):
+    """``first_sensor_hit`` for rays given as x, y, z components: ``origins`` (m) and
+    ``directions`` (unit) are 3-sequences of (R,) arrays; the rest as there.
+
+    Returns ``(sensor_index (R,) int32 or -1, distance (R,) m or inf)``.
+    """
     t_max = t_wall + BASE_MARGIN
     if grid is None:
         n = positions.shape[0]
-        indices = jnp.broadcast_to(jnp.arange(n), origins.shape[:-1] + (n,))
+        indices = jnp.broadcast_to(jnp.arange(n), t_wall.shape + (n,))
     else:
-        exit_points = origins + jnp.where(jnp.isfinite(t_wall), t_wall, 0.0)[..., None] * directions
-        indices = grid_candidates(grid, exit_points)
+        reach = jnp.where(jnp.isfinite(t_wall), t_wall, 0.0)
+        exits = [o + reach * d for o, d in zip(origins, directions, strict=True)]
+        indices = grid_candidates_xyz(grid, exits)
     valid = indices >= 0
     safe = jnp.where(valid, indices, 0)
     # The ray-disc test on x, y, z components of (R, K) arrays (one fused loop in XLA).
     t = disc_hit_distance_xyz(
-        [origins[..., k, None] for k in range(3)],
-        [directions[..., k, None] for k in range(3)],
+        [o[..., None] for o in origins],
+        [d[..., None] for d in directions],
         [positions[:, k][safe] for k in range(3)],
         [normals[:, k][safe] for k in range(3)],
         radius[safe],

@@ -29,6 +29,11 @@ def _xp(points):
     return np if isinstance(points, np.ndarray | list | tuple | float | int) else jnp
 
 
+def xyz(vectors):
+    """The x, y, z components (...,) of vectors (..., 3), as a 3-tuple of arrays."""
+    return tuple(vectors[..., k] for k in range(3))
+
+
 def _check_positive(shape: str, **values: float) -> None:
     for name, value in values.items():
         if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):

@@ -16,7 +16,9 @@ from the source's emission density. Per segment from the current vertex:
    reflection, a sensor hit is a detection the next-event estimate cannot see: add
    weight x exp(-rate_total t_sensor) x QE x eff_j x A(theta) to that sensor (for the
    order of the previous vertex). The first segment's hits (direct light) are not counted:
-   direct light is done by quadrature;
+   direct light is done by quadrature; so is the light mirrored once from the source
+   (``mirror.py``), except near caustics (``focusing_ratio`` below ``FOCUSING_LIMIT``),
+   which only these detections count;
 3. next vertex with a fixed proposal: with probability 1/2 a bulk scatter at s uniform in
    [0, t_end] (weight x exp(-rate_total s) t_end / 0.5; the scattering rate enters below),
    else the end of the segment (weight x exp(-rate_total t_end) / 0.5): the wall, or the
@@ -67,6 +69,7 @@ from ..geometry.shapes import Shape
 from ..params import Params
 from ..pytree import pytree_dataclass
 from .emission import sample_directions
+from .mirror import FOCUSING_LIMIT, focusing_ratio, mirror_light
 from .optics import (
     TransportConfig,
     acceptance_at_cos,
@@ -361,6 +364,7 @@ def indirect_light_jit(
     weight = jnp.broadcast_to(source.n_photons / n_rays, (n_rays,)).astype(dtype)
     time = jnp.broadcast_to(source.time, (n_rays,)).astype(dtype)
     specular = jnp.zeros(n_rays, dtype=bool)
+    first_mirror = jnp.zeros(n_rays, dtype=bool)
     rate_abs, rate_rayleigh, rate_mie, rate_total = interaction_rates(params)
     anisotropy = config.rayleigh_anisotropy
     proposal_g = jnp.asarray(config.mie_proposal_asymmetry, dtype)
@@ -392,11 +396,18 @@ def indirect_light_jit(
         zeros = tuple(jnp.zeros(n, dtype=dtype) for _ in range(3))
         return jax.lax.scan(accumulate, zeros, blocks)[0]
 
-    def trace_segment(origins, directions, weight, time, specular):
+    def trace_segment(origins, directions, weight, time, specular, first_mirror):
         """Trace one segment per ray: its end, the sensor it reaches, the weight of rays
-        still inside, and the delta detections of segments after a specular vertex."""
+        still inside, and the delta detections of segments after a specular vertex.
+        After a first-order mirror vertex only focused paths count here (the rest is
+        ``mirror_light``'s quadrature)."""
         t_end, index, hit, alive = _trace(shape, grid, sensors, origins, directions)
         weight = jnp.where(alive, weight, 0.0)
+        if has_walls:
+            landing = origins + t_end[:, None] * directions
+            focusing = focusing_ratio(shape, source.position, origins, landing)
+            focused = jax.lax.stop_gradient(focusing) < FOCUSING_LIMIT
+            specular = specular & (~first_mirror | focused)
         detected = _detect_on_segment(
             params,
             sensors,
@@ -411,12 +422,12 @@ def indirect_light_jit(
         return t_end, index, hit, weight, detected
 
     def step(carry, order):
-        origins, directions, weight, time, specular = carry
+        origins, directions, weight, time, specular, first_mirror = carry
         u = jax.random.uniform(
             jax.random.fold_in(vertex_key, order), (_UNIFORMS_PER_VERTEX, n_rays), dtype=dtype
         )
         t_end, index, hit, weight, delta = trace_segment(
-            origins, directions, weight, time, specular
+            origins, directions, weight, time, specular, first_mirror
         )
         # next vertex: bulk scatter (proposal 1/2, uniform in [0, t_end]) or segment end
         scatter = u[0] < 0.5
@@ -477,17 +488,23 @@ def indirect_light_jit(
         )
         weight = weight * factor
         specular = (kind == _WALL) & mirror
-        return (vertex, directions, weight, time, specular), (delta, detected)
+        first_mirror = specular & (order == 1)
+        return (vertex, directions, weight, time, specular, first_mirror), (delta, detected)
 
-    carry = (origins, directions, weight, time, specular)
+    carry = (origins, directions, weight, time, specular, first_mirror)
     orders = jnp.arange(1, config.n_bounces + 1)
     carry, (delta, detected) = jax.lax.scan(step, carry, orders)
-    origins, directions, weight, time, specular = carry
-    t_end, index, hit, weight, last = trace_segment(origins, directions, weight, time, specular)
+    t_end, index, hit, weight, last = trace_segment(*carry)
     residual = _residual(params, has_walls, weight, t_end, hit)
     # delta detections of step k + 1 belong to order k (the vertex the segment starts at)
     delta = [jnp.concatenate([d[1:], l[None]], axis=0) for d, l in zip(delta, last, strict=True)]
     total = [a + b for a, b in zip(delta, detected, strict=True)]
+    if has_walls and config.n_bounces > 0:  # first-order mirror light by quadrature
+        mirrored = mirror_light(
+            params, shape, grid, sensor_positions, sensor_normals, sensor_radius, source,
+            reference_time,
+        )
+        total = [t.at[0].add(m) for t, m in zip(total, mirrored, strict=True)]
     charge, first, second = total
     positive = charge > 0
     safe = jnp.where(positive, charge, 1.0)

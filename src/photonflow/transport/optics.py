@@ -210,6 +210,65 @@ def dome_reflection_density_cos(cos_turn, cos_out, in_normal):
     return jnp.where(valid, (cos_out - in_normal) / (4.0 * math.pi * safe), 0.0)
 
 
+# ---- the same on x, y, z components (structure of arrays) -------------------------------
+# Vectors are 3-tuples of arrays that broadcast together: XLA fuses the component-wise
+# arithmetic of a whole batch into single loops, where (..., 3) arrays need reductions.
+
+
+def dot_xyz(a, b):
+    """Dot product of two component 3-tuples."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def cross_xyz(a, b):
+    """Cross product a x b of two component 3-tuples."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def deflect_xyz(direction, cos_theta, phi):
+    """``deflect`` on components: unit ``direction`` turned by polar angle acos(cos_theta)
+    at azimuth ``phi`` (rad) about the basis of ``orthonormal_basis``.
+
+    The basis is left unnormalised (u = d x helper, v = d x u, both of length |u|) and
+    1 / |u| is folded into the azimuth factors, which then end in a division: XLA on CPU
+    evaluates those once per photon, not once per output component (sin and cos count
+    as cheap and would be recomputed for each).
+    """
+    use_z = jnp.abs(direction[2]) < 0.9
+    zero, one = jnp.zeros_like(direction[2]), jnp.ones_like(direction[2])
+    u = cross_xyz(direction, (jnp.where(use_z, zero, one), zero, jnp.where(use_z, one, zero)))
+    v = cross_xyz(direction, u)
+    length = jnp.sqrt(dot_xyz(u, u))
+    sin_squared = 1.0 - cos_theta**2
+    inside = sin_squared > 0
+    # sqrt with a zero (not infinite) derivative at sin = 0, so gradients stay finite
+    sin_theta = jnp.where(inside, jnp.sqrt(jnp.where(inside, sin_squared, 1.0)), 0.0)
+    along_u = sin_theta * jnp.cos(phi) / length
+    along_v = sin_theta * jnp.sin(phi) / length
+    return tuple(
+        cos_theta * d + along_u * a + along_v * b for d, a, b in zip(direction, u, v, strict=True)
+    )
+
+
+def specular_direction_xyz(direction, normal):
+    """``specular_direction`` on components: ``direction`` mirrored about unit ``normal``."""
+    twice = 2.0 * dot_xyz(direction, normal)
+    return tuple(d - twice * n for d, n in zip(direction, normal, strict=True))
+
+
+def dome_normal_xyz(offset, normal, radius):
+    """``dome_normal`` on components: the unit normal of the hemispherical dome over a
+    sensor disc at ``offset`` (m) from the disc centre; ``normal`` unit, ``radius`` m."""
+    along = dot_xyz(offset, normal)
+    in_plane = tuple(q - along * n for q, n in zip(offset, normal, strict=True))
+    rho2 = dot_xyz(in_plane, in_plane)
+    inside = radius * radius - rho2 > 0
+    height = jnp.where(inside, jnp.sqrt(jnp.where(inside, radius * radius - rho2, 1.0)), 0.0)
+    dome = tuple((q + height * n) / radius for q, n in zip(in_plane, normal, strict=True))
+    length = jnp.sqrt(dot_xyz(dome, dome))
+    return tuple(c / length for c in dome)
+
+
 def travel_time(distance, params: Params):
     """Time (ns) for light to travel ``distance`` (m) at the group velocity c / n_g."""
     return distance * params.group_index / SPEED_OF_LIGHT
