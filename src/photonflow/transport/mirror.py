@@ -13,7 +13,7 @@ therefore computed like direct light, for every node x of a 7-point rule on disc
 with L = |P - s| + |x - P| the path length, omega_P the emission direction toward P,
 A_P the area per steradian of the reflected ray tube at x (m^2/sr; photons per m^2
 across the ray = S / A_P) and the indicator that the photon reaches the black wall at P
-rather than a sensor disc (``first_sensor_hit`` along s -> P). The reflection points:
+rather than a sensor disc (``on_sensor``). The reflection points:
 
 - planar faces (cylinder caps, box faces): the mirror image s' of the source; P is where
   the line s' -> x crosses the plane, A_P = L^2;
@@ -43,7 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..geometry.sensor_grid import first_sensor_hit
+from ..geometry.sensor_grid import grid_candidates_xyz
 from ..geometry.shapes import Box, Cylinder, Sphere
 from ..params import Params
 from .optics import acceptance_at_cos, interaction_rates, travel_time
@@ -58,6 +58,10 @@ NEWTON_STEPS = 10
 #: Paths whose ray tube is focused below this fraction of a flat mirror's are left to
 #: the rays (``focusing_ratio``).
 FOCUSING_LIMIT = 0.25
+#: A wall point within this distance (m) of a disc's plane and inside its rim is under
+#: the sensor (discs sit on the wall; a curved wall departs from the disc's plane by
+#: r^2 / 2R, 2 mm for SK's 20" PMTs).
+ON_DISC = 0.05
 #: Largest |slope| (dimensionless) accepted at a refined root.
 ROOT_TOLERANCE = 1e-3
 #: Newton steps moving a disc centre's reflection points to the nodes of its disc.
@@ -323,6 +327,23 @@ def reflection_points(shape, source, nodes):
     return tuple(jnp.concatenate(xs, axis=1) for xs in zip(*parts, strict=True))
 
 
+def on_sensor(grid, sensor_positions, sensor_normals, sensor_radius, points):
+    """Whether wall points (..., 3) m lie under a sensor disc: within its radius of its
+    centre across its axis and within ``ON_DISC`` m of its plane (the discs sit on the
+    wall; the lookup grid lists every disc near a point). A photon heading there meets
+    the sensor, not the wall."""
+    xyz = tuple(points[..., k] for k in range(3))
+    candidates = grid_candidates_xyz(grid, xyz)  # (..., K)
+    valid = candidates >= 0
+    index = jnp.where(valid, candidates, 0)
+    offset = [xyz[k][..., None] - sensor_positions[:, k][index] for k in range(3)]
+    height = sum(offset[k] * sensor_normals[:, k][index] for k in range(3))
+    across = sum(o * o for o in offset) - height * height
+    radius = sensor_radius[index]
+    inside = valid & (across < radius * radius) & (jnp.abs(height) < ON_DISC)
+    return jnp.any(inside, axis=-1)
+
+
 def mirror_light(params: Params, shape, grid, sensor_positions, sensor_normals, sensor_radius,
                  source, reference_time):
     """First-order specular light from the source per sensor (see the module docstring).
@@ -348,7 +369,6 @@ def mirror_light(params: Params, shape, grid, sensor_positions, sensor_normals, 
     # slots without a reflection get a harmless point inside (finite values and gradients)
     harmless = 0.5 * (source.position + targets)[:, None, :]
     points = jnp.where(valid[..., None], points, harmless)
-    paths = points.shape[1]
     focusing = focusing_ratio(shape, source.position, points, targets[:, None])
 
     incoming = points - source.position
@@ -357,16 +377,10 @@ def mirror_light(params: Params, shape, grid, sensor_positions, sensor_normals, 
     outgoing = targets[:, None] - points
     l_out = jnp.linalg.norm(outgoing, axis=-1)
     cos_in = -jnp.sum(outgoing * sensor_normals[receiver][:, None], axis=-1) / l_out
-    blocked, _ = first_sensor_hit(
-        grid,
-        sensor_positions,
-        sensor_normals,
-        sensor_radius,
-        jnp.broadcast_to(source.position, (targets.shape[0] * paths, 3)),
-        jax.lax.stop_gradient(emission.reshape(-1, 3)),
-        jax.lax.stop_gradient(l_in.reshape(-1)),
+    covered = on_sensor(
+        grid, sensor_positions, sensor_normals, sensor_radius, jax.lax.stop_gradient(points)
     )
-    counts = valid & (blocked.reshape(l_in.shape) < 0) & (cos_in > 0)
+    counts = valid & ~covered & (cos_in > 0)
     counts = counts & (jax.lax.stop_gradient(focusing) >= FOCUSING_LIMIT)
 
     rate_total = interaction_rates(params)[3]
