@@ -81,3 +81,29 @@ def test_shower_maximum_follows_pdg_formula():
     maximum = shower_maximum(showers(1000.0, 24))
     assert maximum == pytest.approx(math.log(1000.0 / critical_energy(WATER)) - 0.5, abs=0.75)
     assert maximum == pytest.approx((2.01849 - 1.0) / 0.63207, abs=0.4)
+
+
+def test_track_length_against_acem_fluka_model():
+    """Cherenkov-weighted track length of electron showers at 1, 2 and 5 GeV against the
+    ``acem`` package's FLUKA-based parametrisation for water (PDG code 11; lengths in cm):
+    the mean within 5 % (the issue's criterion; the model is ~3 % above, like against
+    Radel-Wiebusch). The shower-to-shower spread is compared, not matched: FLUKA's
+    (2.7 % at 1 GeV, 2.3 % at 5 GeV) includes photonuclear and other hadronic
+    fluctuations this generator does not model; ours must be smaller than it and shrink
+    with energy, as the purely electromagnetic Geant4 values do (1.09 / 0.77 / 0.49 % at
+    1 / 2 / 5 GeV, Radel & Wiebusch, physics.md section 3)."""
+    from acem import media, model  # a test dependency (pyproject "test" extra)
+
+    reference = model.Parametrization1D(media.WATER)
+    spreads = []
+    for energy_gev, count in ((1.0, 6), (2.0, 4), (5.0, 3)):
+        lengths = np.array(
+            [cherenkov_weighted_length(p) for p in showers(1000.0 * energy_gev, count, 300)]
+        )
+        fluka = reference.ltot_dist(11, energy_gev)
+        fluka_mean_m = fluka.mean() / 100.0
+        assert lengths.mean() == pytest.approx(fluka_mean_m, rel=0.05)
+        spread = lengths.std(ddof=1) / lengths.mean()
+        assert spread < fluka.std() / fluka.mean()
+        spreads.append(spread)
+    assert spreads[0] > spreads[-1]
