@@ -9,6 +9,7 @@ import pytest
 
 from photonflow.errors import ConfigError
 from photonflow.geometry import preset_detector
+from photonflow.geometry.shapes import xyz
 from photonflow.params import default_params
 from photonflow.sources import DiffuserSource, IsotropicSource, LaserSource
 from photonflow.transport import direct_light
@@ -16,12 +17,24 @@ from photonflow.transport.emission import sample_directions
 from photonflow.transport.optics import (
     SPEED_OF_LIGHT,
     TransportConfig,
+    deflect,
+    deflect_xyz,
+    dome_normal,
+    dome_normal_xyz,
     lambertian_density,
     lambertian_direction,
     rayleigh_density,
     sample_rayleigh_cos,
+    specular_direction,
+    specular_direction_xyz,
 )
-from photonflow.transport.sampled import sample, sample_events, sample_photons
+from photonflow.transport.sampled import (
+    _alive_lanes,
+    _wall_response,
+    sample,
+    sample_events,
+    sample_photons,
+)
 
 SPHERE = preset_detector("TOY_SPHERE")
 CYLINDER = preset_detector("TOY_CYLINDER")
@@ -271,3 +284,47 @@ def test_emission_directions_follow_the_source_density(kind):
     # the azimuth about the axis is uniform: the mean transverse component vanishes
     transverse = directions - cos[:, None] * ref
     assert np.all(np.abs(transverse.mean(axis=0)) < 5 / math.sqrt(cos.size))
+
+
+# ---- the building blocks of a step ----------------------------------------------------
+
+
+def unit_vectors(rng, n):
+    v = rng.normal(size=(n, 3))
+    return (v / np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
+
+
+def test_component_wise_directions_equal_the_vector_ones():
+    rng = np.random.default_rng(4)
+    n = 20_000
+    d, normal = unit_vectors(rng, n), unit_vectors(rng, n)
+    d[:100] = [0.0, 0.0, 1.0]  # along the helper-axis switch
+    cos_t = rng.uniform(-1, 1, n).astype(np.float32)
+    phi = rng.uniform(0, 2 * math.pi, n).astype(np.float32)
+    radius = rng.uniform(0.1, 0.3, n).astype(np.float32)
+    offset = (0.2 * rng.normal(size=(n, 3))).astype(np.float32)
+    pairs = [
+        (deflect(d, cos_t, phi), deflect_xyz(xyz(d), cos_t, phi)),
+        (specular_direction(d, normal), specular_direction_xyz(xyz(d), xyz(normal))),
+        (dome_normal(offset, normal, radius), dome_normal_xyz(xyz(offset), xyz(normal), radius)),
+    ]
+    for vectors, components in pairs:
+        np.testing.assert_allclose(np.stack(components, -1), vectors, atol=2e-5)
+
+
+def test_alive_lanes_are_the_nonzero_indices():
+    alive = jnp.asarray(np.random.default_rng(5).uniform(size=1000) < 0.3)
+    lanes, count = _alive_lanes(alive, 1024)
+    expected = np.flatnonzero(np.asarray(alive))
+    assert int(count) == expected.size
+    np.testing.assert_array_equal(lanes[: expected.size], expected)
+    assert np.all(np.asarray(lanes[expected.size :]) == 1000)
+
+
+def test_wall_reflections_split_into_specular_and_lambertian_fractions():
+    params = default_params(CYLINDER).replace(wall_reflectivity=0.3, wall_specular_fraction=0.25)
+    u = (jnp.arange(100_000, dtype=jnp.float32) + 0.5) / 100_000
+    reflected, specular = (np.asarray(x) for x in _wall_response(u, params))
+    assert reflected.mean() == pytest.approx(0.3, abs=1e-4)
+    assert specular[reflected].mean() == pytest.approx(0.25, abs=1e-3)
+    assert not np.any(specular & ~reflected)

@@ -5,11 +5,19 @@ mode) and photon-by-photon Monte Carlo (sampled mode), on one description of the
 from .direct import SPEED_OF_LIGHT, direct_light, direct_light_jit, interpolate_acceptance
 from .expected import expected
 from .optics import TransportConfig
-from .sampled import sample, sample_events, sample_photons
+from .sampled import (
+    PhotonBundle,
+    random_tracks,
+    sample,
+    sample_events,
+    sample_photon_bundle,
+    sample_photons,
+)
 from .solid_angle import disc_solid_angle, plane_basis
 
 __all__ = [
     "SPEED_OF_LIGHT",
+    "PhotonBundle",
     "TransportConfig",
     "direct_light",
     "direct_light_jit",
@@ -17,7 +25,9 @@ __all__ = [
     "expected",
     "interpolate_acceptance",
     "plane_basis",
+    "random_tracks",
     "sample",
     "sample_events",
+    "sample_photon_bundle",
     "sample_photons",
 ]

@@ -2,8 +2,11 @@
 
 The physics is the one of ``optics.py``, step by step for a batch of photons at once:
 
-1. emission at the source position, direction from ``emission.sample_directions``,
-   time = source time + Gaussian jitter of sigma ``pulse_width`` (ns);
+1. emission: a point source's photons start at its position, direction from
+   ``emission.sample_directions``, time = source time + Gaussian jitter of sigma
+   ``pulse_width`` (ns) (``sample_photons``); a photon bundle's photons (e.g. a particle
+   track's, ``track_photons``) at their own positions, directions and times
+   (``sample_photon_bundle``); both then run the same loop (``_follow``);
 2. each step, for every photon still alive: the distance to the next bulk interaction
    s ~ Exp(total rate) (inf when every length is inf), the distance to the wall
    (``shape.ray_exit``) and the first sensor disc hit before the wall
@@ -24,9 +27,16 @@ The physics is the one of ``optics.py``, step by step for a batch of photons at 
    ``capped`` (lost), so every photon ends within n_bounces + 1 steps.
 
 Photons run in batches of ``config.batch_size`` inside one jitted ``lax.while_loop``
-(compiled once per detector size, source type and config; the batch key is
-``fold_in(key, batch_index)``) and are tallied on the host, so memory stays bounded
-for any number of photons. Lengths in m, times in ns.
+(compiled once per detector size, source type or bundle, and config; the batch key is
+``fold_in(key, batch_index)``) and are tallied on the host (``_tally_batches``), so
+memory stays bounded for any number of photons. Each step follows only the photons
+still alive, gathered into chunks of batch / ``COMPACTION`` lanes, and works on x, y, z
+component arrays (structure of arrays), which XLA on CPU fuses into a few loops per
+chunk. Lengths in m, times in ns.
+
+Particle tracks (``sample`` / ``sample_events`` with a ``Track``): generated photons,
+thinned by the sensor's spectral response, transported as a bundle; see
+docs/transport.md, "Particle tracks in sampled mode".
 """
 
 from __future__ import annotations
@@ -35,30 +45,48 @@ import dataclasses
 import functools
 import math
 import numbers
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..config.loader import DEFAULT_MEDIUM
 from ..errors import ConfigError, format_value
+from ..generator import GeneratorSettings, Track, generate
 from ..geometry.detector import Detector
-from ..geometry.sensor_grid import SensorGrid, build_sensor_grid, first_sensor_hit
+from ..geometry.presets import PRESETS
+from ..geometry.sensor_grid import SensorGrid, build_sensor_grid, first_sensor_hit_xyz
+from ..geometry.shapes import xyz
 from ..io.events import Event, Truth
+from ..medium import MEDIA
 from ..params import Params, validate_params
+from ..photosensors import (
+    SensorModel,
+    peak_response,
+    sensor_model,
+    spectral_keep_probability,
+)
 from ..response import DEFAULT_CONFIG, photoelectrons_to_event
-from ..sources import DiffuserSource, IsotropicSource, LaserSource, check_source
+from ..sources import (
+    DIRECTION_TOLERANCE,
+    DiffuserSource,
+    IsotropicSource,
+    LaserSource,
+    check_source,
+)
 from .emission import sample_directions
 from .optics import (
-    SPEED_OF_LIGHT,
     TransportConfig,
     acceptance_at_cos,
-    deflect,
-    dome_normal,
+    deflect_xyz,
+    dome_normal_xyz,
+    dot_xyz,
     interaction_rates,
-    lambertian_direction,
     sample_henyey_greenstein_cos,
     sample_rayleigh_cos,
-    specular_direction,
+    specular_direction_xyz,
+    travel_time,
 )
 
 #: Photon fates (status codes of the transport loop).
@@ -69,11 +97,10 @@ NUDGE = 5e-6
 #: Smallest batch used for small photon counts (batches are powers of two up to
 #: ``config.batch_size``, so few sizes are ever compiled).
 MIN_BATCH = 1 << 10
-#: After the first step the survivors are followed in chunks this many times smaller
-#: than the batch (most photons end on their first segment).
+#: Each step follows the photons still alive in chunks this many times smaller than the
+#: batch: most photons end on their first segment, and a chunk's working set (its
+#: candidate-sensor tests above all) stays in the CPU caches.
 COMPACTION = 8
-#: Uniform random numbers drawn per photon per step.
-_N_UNIFORMS = 5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,190 +187,269 @@ def batch_size_for(n_photons: int, config: TransportConfig) -> int:
 
 
 # ---- one step of the transport loop (pure functions on batches) -------------------------
+# Vectors are x, y, z component tuples of (B,) arrays (structure of arrays): XLA on CPU
+# fuses the component-wise arithmetic of a step into a few loops over the batch.
 
 
-def _bulk_outcome(u_process, u_cos, u_phi, direction, rates, params, anisotropy):
-    """Absorbed-or-not and the scattered direction of a bulk interaction."""
+class Photons(NamedTuple):
+    """A batch of photons in the transport loop, each field (B,).
+
+    Attributes:
+        position: (x, y, z) of the current vertex, m.
+        direction: (x, y, z) unit direction of flight.
+        wall: distance from the vertex to the wall along the direction, m (computed
+            where the direction is set, so that each step's sensor lookup reads it
+            from memory: XLA would otherwise recompute it per candidate sensor).
+        path: path length travelled so far, m.
+        vertices: scatterings and reflections so far.
+        status: fate code (``ALIVE`` while in flight).
+        sensor: index of the sensor that detected the photon, else -1.
+    """
+
+    position: tuple
+    direction: tuple
+    wall: jax.Array
+    path: jax.Array
+    vertices: jax.Array
+    status: jax.Array
+    sensor: jax.Array
+
+
+#: Values of the lanes of a chunk that hold no photon (a unit direction keeps their
+#: arithmetic finite; their results are dropped).
+_EMPTY = Photons((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0.0, 0.0, 0, UNUSED, -1)
+
+
+def _uniforms(key, count: int, shape, dtype):
+    """``count`` independent arrays of uniforms in [0, 1) of ``shape`` (one PRNG draw)."""
+    return tuple(jax.random.uniform(key, (count,) + tuple(shape), dtype))
+
+
+def _wall_distance(shape, position, direction):
+    """Distance (m, >= 0) from ``position`` along unit ``direction`` to the wall."""
+    t_wall = shape.ray_exit(jnp.stack(position, -1), jnp.stack(direction, -1))
+    return jnp.maximum(t_wall, 0.0)
+
+
+def _bulk_turn(u_process, u_cos, rates, params, anisotropy):
+    """(absorbed, cos of the scattering angle) of a bulk interaction: absorbed with
+    probability rate_abs / rate_total, else Rayleigh or Mie by their rate ratio."""
     absorption, rayleigh, _, total = rates
     pick = u_process * total
-    absorbed = pick < absorption
-    is_rayleigh = pick < absorption + rayleigh
     cos_theta = jnp.where(
-        is_rayleigh,
+        pick < absorption + rayleigh,
         sample_rayleigh_cos(u_cos, anisotropy),
         sample_henyey_greenstein_cos(u_cos, params.mie_g),
     )
-    return absorbed, deflect(direction, cos_theta, 2.0 * math.pi * u_phi)
+    return pick < absorption, cos_theta
 
 
-def _sensor_outcome(u, direction, point, sensor, sensors, params):
-    """(detected, reflected, new direction) of photons crossing sensor discs at ``point``;
-    reflection is specular off the glass dome over the disc (``optics.dome_normal``)."""
+def _sensor_response(u, direction, point, sensor, sensors, params):
+    """(detected, reflected, mirror normal) of photons crossing disc ``sensor`` at
+    ``point`` (m): detected if u < QE x efficiency x acceptance, reflected if not and
+    u < that + ``sensor_reflectivity``; the mirror is the glass dome over the disc."""
     positions, normals, radius = sensors
-    normal = normals[sensor]
-    cos_incidence = jnp.clip(-jnp.sum(direction * normal, axis=-1), -1.0, 1.0)
+    normal = tuple(normals[:, k][sensor] for k in range(3))
+    centre = tuple(positions[:, k][sensor] for k in range(3))
+    cos_incidence = jnp.clip(-dot_xyz(direction, normal), -1.0, 1.0)
     acceptance = acceptance_at_cos(params.angular_acceptance, cos_incidence)
     p_detect = params.quantum_efficiency * params.efficiency[sensor] * acceptance
     detected = u < p_detect
     reflected = ~detected & (u < p_detect + params.sensor_reflectivity)
-    dome = dome_normal(point - positions[sensor], normal, radius[sensor])
-    return detected, reflected, specular_direction(direction, dome)
+    offset = tuple(p - c for p, c in zip(point, centre, strict=True))
+    return detected, reflected, dome_normal_xyz(offset, normal, radius[sensor])
 
 
-def _wall_outcome(u_reflect, u_kind, u1, u2, direction, points, shape, params):
-    """(reflected, new direction) of photons reaching the wall at ``points``."""
-    normal = shape.inward_normal(points)
-    reflected = u_reflect < params.wall_reflectivity
-    specular = u_kind < params.wall_specular_fraction
-    diffuse = lambertian_direction(normal, u1, u2)
-    return reflected, jnp.where(specular[:, None], specular_direction(direction, normal), diffuse)
+def _wall_response(u, params):
+    """(reflected, specular) of photons reaching the wall from one uniform u: reflected
+    if u < R (``wall_reflectivity``), specularly if moreover u < R x
+    ``wall_specular_fraction`` (u / R is uniform given a reflection), else Lambertian."""
+    reflectivity = params.wall_reflectivity
+    return u < reflectivity, u < reflectivity * params.wall_specular_fraction
 
 
-def _step_function(shape, config, sensors, grid, params, key):
-    """The body of the transport ``while_loop`` for one batch (closure over constants)."""
+def _new_direction(direction, bulk, cos_scatter, on_sensor, dome, specular, wall, u_cos, u_phi):
+    """Unit direction after an interaction, one per photon: a turn about an axis (bulk
+    scattering by ``cos_scatter``; Lambertian reflection, cos = sqrt(u_cos), about the
+    inward ``wall`` normal) at azimuth 2 pi u_phi, or a mirror image (about the sensor's
+    ``dome`` normal, or the wall's for a specular reflection)."""
+    turns = bulk | (~on_sensor & ~specular)
+    axis = tuple(jnp.where(bulk, d, n) for d, n in zip(direction, wall, strict=True))
+    cos_theta = jnp.where(bulk, cos_scatter, jnp.sqrt(u_cos))
+    turned = deflect_xyz(axis, cos_theta, 2.0 * math.pi * u_phi)
+    mirror = tuple(jnp.where(on_sensor, m, n) for m, n in zip(dome, wall, strict=True))
+    mirrored = specular_direction_xyz(direction, mirror)
+    new = tuple(jnp.where(turns, t, m) for t, m in zip(turned, mirrored, strict=True))
+    length = jnp.sqrt(dot_xyz(new, new))
+    return tuple(c / length for c in new)
+
+
+def _fate(bulk, absorbed, on_sensor, detected, sensor_reflected, wall_reflected, has_walls):
+    """Status code after a segment ends: ``ALIVE`` for a scattering or a reflection."""
+    at_wall = jnp.where(wall_reflected, ALIVE, ABSORBED_WALL if has_walls else ESCAPED)
+    at_sensor = jnp.where(detected, DETECTED, jnp.where(sensor_reflected, ALIVE, ABSORBED_SENSOR))
+    surface = jnp.where(on_sensor, at_sensor, at_wall)
+    return jnp.where(bulk, jnp.where(absorbed, ABSORBED_BULK, ALIVE), surface)
+
+
+def _step_function(shape, config, sensors, grid, params):
+    """``step(key, photons) -> photons``: one segment and its interaction for photons that
+    are all ALIVE (``_step_in_chunks`` passes only those, and drops the results of its
+    fill lanes); closure over constants. Uniforms per photon, from ``key``: the free path,
+    the process (bulk kind, detection, reflection), the polar angle and the azimuth."""
     positions, normals, radius = sensors
     rates = interaction_rates(params)
     total = rates[3]
     has_walls = bool(shape.has_walls)
 
-    def step(state):
-        index, position, direction, path, vertices, status, sensor = state
-        dtype = position.dtype
-        alive = status == ALIVE
-        u = jax.random.uniform(jax.random.fold_in(key, index), (_N_UNIFORMS,) + path.shape, dtype)
+    def step(key, photons):
+        position, direction = photons.position, photons.direction
+        u_free, u_process, u_cos, u_phi = _uniforms(key, 4, photons.path.shape, photons.path.dtype)
 
-        t_wall = jnp.maximum(shape.ray_exit(position, direction), 0.0)
-        hit, t_hit = first_sensor_hit(grid, positions, normals, radius, position, direction, t_wall)
+        t_wall = photons.wall
+        hit, t_hit = first_sensor_hit_xyz(
+            grid, positions, normals, radius, position, direction, t_wall
+        )
         on_sensor = hit >= 0
         t_surface = jnp.where(on_sensor, t_hit, t_wall)
-        free_path = -jnp.log1p(-u[0]) / jnp.where(total > 0, total, 1.0)
-        s = jnp.where(total > 0, free_path, jnp.inf)
+        free_path = -jnp.log1p(-u_free) / jnp.where(total > 0, total, 1.0)
+        bulk = jnp.where(total > 0, free_path, jnp.inf) < t_surface
+        distance = jnp.where(bulk, free_path, t_surface)
+        point = tuple(p + distance * d for p, d in zip(position, direction, strict=True))
 
-        bulk = s < t_surface
-        distance = jnp.where(bulk, s, t_surface)
-        point = position + distance[:, None] * direction
-        path = jnp.where(alive, path + distance, path)
-        bulk_sensor = jnp.where(on_sensor, hit, 0)
-
-        absorbed_bulk, scattered_dir = _bulk_outcome(
-            u[1], u[2], u[3], direction, rates, params, config.rayleigh_anisotropy
+        absorbed, cos_scatter = _bulk_turn(
+            u_process, u_cos, rates, params, config.rayleigh_anisotropy
         )
-        detected, sensor_reflected, sensor_dir = _sensor_outcome(
-            u[1], direction, point, bulk_sensor, sensors, params
+        detected, sensor_reflected, dome = _sensor_response(
+            u_process, direction, point, jnp.where(on_sensor, hit, 0), sensors, params
         )
-        wall_reflected, wall_dir = _wall_outcome(
-            u[1], u[2], u[3], u[4], direction, point, shape, params
-        )
-
-        at_sensor = ~bulk & on_sensor
-        at_wall = ~bulk & ~on_sensor
+        wall_reflected, specular = _wall_response(u_process, params)
         if not has_walls:  # the world boundary of an open medium: nothing comes back
-            wall_reflected = jnp.zeros_like(at_wall)
-        escapes = at_wall if not has_walls else jnp.zeros_like(at_wall)
-        scatters = bulk & ~absorbed_bulk
-        reflects = (at_sensor & sensor_reflected) | (at_wall & wall_reflected)
-        vertex = scatters | reflects
-        capped = vertex & (vertices >= config.n_bounces)
+            wall_reflected = jnp.zeros_like(wall_reflected)
+        wall_normal = xyz(shape.inward_normal(jnp.stack(point, -1)))
 
-        outcome = jnp.select(
-            [
-                bulk & absorbed_bulk,
-                at_sensor & detected,
-                at_sensor & ~sensor_reflected,
-                escapes,
-                at_wall & ~wall_reflected,
-                capped,
-            ],
-            [ABSORBED_BULK, DETECTED, ABSORBED_SENSOR, ESCAPED, ABSORBED_WALL, CAPPED],
-            ALIVE,
+        new_dir = _new_direction(
+            direction, bulk, cos_scatter, on_sensor, dome, specular, wall_normal, u_cos, u_phi
         )
-        new_status = jnp.where(alive, outcome, status)
-        continues = alive & (new_status == ALIVE)
-        new_dir = jnp.where(
-            bulk[:, None], scattered_dir, jnp.where(at_sensor[:, None], sensor_dir, wall_dir)
+
+        outcome = _fate(
+            bulk, absorbed, on_sensor, detected, sensor_reflected, wall_reflected, has_walls
         )
-        new_dir = new_dir / jnp.linalg.norm(new_dir, axis=-1, keepdims=True)
-        new_point = point + jnp.where(reflects, NUDGE, 0.0)[:, None] * new_dir
-        return (
-            index + 1,
-            jnp.where(continues[:, None], new_point, position),
-            jnp.where(continues[:, None], new_dir, direction),
-            path,
-            vertices + continues.astype(vertices.dtype),
-            new_status,
-            jnp.where(alive & (new_status == DETECTED), hit, sensor),
+        capped = (outcome == ALIVE) & (photons.vertices >= config.n_bounces)
+        status = jnp.where(capped, CAPPED, outcome)
+        nudge = jnp.where(bulk, 0.0, NUDGE)  # reflected photons leave the surface
+        position = tuple(p + nudge * d for p, d in zip(point, new_dir, strict=True))
+        # Written unconditionally: what a photon that ended carries is never read again.
+        return Photons(
+            position=position,
+            direction=new_dir,
+            wall=_wall_distance(shape, position, new_dir),
+            path=photons.path + distance,
+            vertices=photons.vertices + 1,
+            status=status,
+            sensor=jnp.where(status == DETECTED, hit, -1),
         )
 
     return step
 
 
+def _launch_photons(shape, position, direction, n_active, batch: int, dtype) -> Photons:
+    """The ``batch`` lanes of a fresh batch: the first ``n_active`` ALIVE at their emission
+    ``position`` (m) and unit ``direction`` (x, y, z tuples of (B,)), the rest UNUSED."""
+    return Photons(
+        position=position,
+        direction=direction,
+        wall=_wall_distance(shape, position, direction),
+        path=jnp.zeros(batch, dtype),
+        vertices=jnp.zeros(batch, jnp.int32),
+        status=jnp.where(jnp.arange(batch) < n_active, ALIVE, UNUSED).astype(jnp.int32),
+        sensor=jnp.full(batch, -1, jnp.int32),
+    )
+
+
+def _follow(loop_key, photons, emit_time, sensors, grid, params, shape, config, batch: int):
+    """Run the transport loop on a launched batch until no photon is ALIVE (at most
+    ``n_bounces`` + 1 steps); returns (status (B,), sensor (B,), arrival time (B,) ns)."""
+    step = _step_function(shape, config, sensors, grid, params)
+
+    def running(carry):
+        index, photons = carry
+        return (index <= config.n_bounces) & jnp.any(photons.status == ALIVE)
+
+    def advance(carry):  # step ``index`` draws from fold_in(loop_key, index)
+        index, photons = carry
+        step_key = jax.random.fold_in(loop_key, index)
+        return index + 1, _step_in_chunks(photons, step, step_key, max(batch // COMPACTION, 1))
+
+    _, photons = jax.lax.while_loop(running, advance, (jnp.int32(0), photons))
+    return photons.status, photons.sensor, emit_time + travel_time(photons.path, params)
+
+
 @functools.partial(jax.jit, static_argnames=("shape", "config", "batch"))
-def _transport_batch(
+def _transport_source_batch(
     key, batch_index, n_active, sensors, grid, params, source, *, shape, config, batch
 ):
-    """Transport one batch; returns (status (B,), sensor (B,), arrival time (B,) ns)."""
+    """Emit and transport one batch of a point source (keys split from
+    ``fold_in(key, batch_index)``: emission directions, pulse jitter, loop)."""
     dtype = params.absorption_length.dtype
     batch_key = jax.random.fold_in(key, batch_index)
     emit_key, jitter_key, loop_key = jax.random.split(batch_key, 3)
     u = jax.random.uniform(emit_key, (2, batch), dtype)
-    direction = sample_directions(source, u[0], u[1])
+    direction = xyz(sample_directions(source, u[0], u[1]))
     emit_time = source.time + source.pulse_width * jax.random.normal(jitter_key, (batch,), dtype)
-    position = jnp.broadcast_to(source.position, (batch, 3))
-    status = jnp.where(jnp.arange(batch) < n_active, ALIVE, UNUSED).astype(jnp.int32)
-    state = (
-        jnp.zeros((), jnp.int32),
-        position,
-        direction,
-        jnp.zeros(batch, dtype),
-        jnp.zeros(batch, jnp.int32),
-        status,
-        jnp.full(batch, -1, jnp.int32),
+    position = tuple(jnp.full(batch, source.position[k], dtype) for k in range(3))
+    photons = _launch_photons(shape, position, direction, n_active, batch, dtype)
+    return _follow(loop_key, photons, emit_time, sensors, grid, params, shape, config, batch)
+
+
+@functools.partial(jax.jit, static_argnames=("shape", "config", "batch"))
+def _transport_bundle_batch(
+    key, batch_index, n_active, sensors, grid, params, position, direction, emit_time,
+    *, shape, config, batch,
+):
+    """Transport one batch of given photons: position (B, 3) m, unit direction (B, 3),
+    emission time (B,) ns, the first ``n_active`` real (loop key ``fold_in(key,
+    batch_index)``)."""
+    photons = _launch_photons(
+        shape, xyz(position), xyz(direction), n_active, batch, params.absorption_length.dtype
     )
-
-    def running(state):
-        return jnp.any(state[5] == ALIVE) & (state[0] <= config.n_bounces)
-
-    def follow(state, key):
-        step = _step_function(shape, config, sensors, grid, params, key)
-        return jax.lax.while_loop(running, step, state)
-
-    step = _step_function(shape, config, sensors, grid, params, loop_key)
-
-    # Most photons end on their first segment (absorbed, detected or at the wall):
-    # follow the survivors of step 0 in chunks of batch / COMPACTION lanes, so that the
-    # later steps do not spend their time on finished photons.
-    state = step(state)
-    if config.n_bounces > 0:
-        state = _follow_survivors(state, follow, loop_key, batch)
-    _, _, _, path, _, status, sensor = state
-    return status, sensor, emit_time + path * params.group_index / SPEED_OF_LIGHT
+    loop_key = jax.random.fold_in(key, batch_index)
+    return _follow(loop_key, photons, emit_time, sensors, grid, params, shape, config, batch)
 
 
-def _follow_survivors(state, follow, key, batch: int):
-    """Run ``follow`` (the transport loop) on the ALIVE lanes of ``state``, gathered into
-    chunks of ``batch // COMPACTION`` lanes, and scatter the results back. Each chunk
-    draws its random numbers from its own key (``fold_in(key, chunk + 1)``), so no two
-    photons share a random stream."""
-    chunk = max(batch // COMPACTION, 1)
-    survivors = jnp.nonzero(state[5] == ALIVE, size=batch, fill_value=batch)[0]
-    n_chunks = (jnp.sum(state[5] == ALIVE) + chunk - 1) // chunk
-    fill = (0.0, 0.0, 0.0, 0, UNUSED, -1)
+def _step_in_chunks(photons, step, key, chunk: int):
+    """Apply ``step(key, photons)`` to the ALIVE photons only, gathered into chunks of
+    ``chunk`` lanes (after the first step most photons have ended), and scatter the
+    results back. Chunk c draws its random numbers from ``fold_in(key, c)``."""
+    batch = photons.status.shape[0]
+    lanes, n_alive = _alive_lanes(photons.status == ALIVE, -(-batch // chunk) * chunk)
+    n_chunks = (n_alive + chunk - 1) // chunk
 
-    def one_chunk(carry):
-        done, state = carry
-        lanes = jax.lax.dynamic_slice(survivors, (done * chunk,), (chunk,))
-        sub = (state[0],) + tuple(
-            jnp.take(x, lanes, axis=0, mode="fill", fill_value=v)
-            for x, v in zip(state[1:], fill, strict=True)
+    def one_chunk(c, photons):
+        these = jax.lax.dynamic_slice(lanes, (c * chunk,), (chunk,))
+        sub = jax.tree.map(
+            lambda x, empty: jnp.take(x, these, axis=0, mode="fill", fill_value=empty),
+            photons,
+            _EMPTY,
         )
-        sub = follow(sub, jax.random.fold_in(key, done + 1))
-        merged = tuple(
-            x.at[lanes].set(y, mode="drop") for x, y in zip(state[1:], sub[1:], strict=True)
-        )
-        return done + 1, (state[0],) + merged
+        sub = step(jax.random.fold_in(key, c), sub)
+        return jax.tree.map(lambda x, y: x.at[these].set(y, mode="drop"), photons, sub)
 
-    _, state = jax.lax.while_loop(lambda c: c[0] < n_chunks, one_chunk, (jnp.int32(0), state))
-    return state
+    return jax.lax.fori_loop(0, n_chunks, one_chunk, photons)
+
+
+def _alive_lanes(alive, size: int):
+    """(indices of the True entries of ``alive`` in order, padded with ``len(alive)`` to
+    ``size`` >= len(alive) entries; their count). ``jnp.nonzero`` with a log-depth scan
+    for the ranks: its cumsum lowers to a reduce-window that is twice as slow on CPU."""
+    n = alive.shape[0]
+    rank = jax.lax.associative_scan(jnp.add, alive.astype(jnp.int32))
+    lanes = (
+        jnp.full(size, n, jnp.int32)
+        .at[jnp.where(alive, rank - 1, size)]
+        .set(jnp.arange(n, dtype=jnp.int32), mode="drop")
+    )
+    return lanes, rank[-1]
 
 
 def as_key(key_or_seed):
@@ -355,6 +461,63 @@ def as_key(key_or_seed):
     if isinstance(key_or_seed, jax.Array):
         return key_or_seed
     raise ConfigError(f"seed = {format_value(key_or_seed)}: must be an integer or a JAX key")
+
+
+def _grid_for(detector: Detector, grid: SensorGrid | None) -> SensorGrid | None:
+    """The sensor grid the loop uses: ``grid`` (built when None) for a walled detector,
+    None for an open medium."""
+    if not detector.shape.has_walls:
+        return None
+    return build_sensor_grid(detector) if grid is None else grid
+
+
+def _strict_cast(dtype):
+    """``leaf -> array of dtype`` without weak typing (so that jit sees one signature)."""
+    return lambda leaf: jnp.asarray(leaf, dtype=dtype) + jnp.zeros((), dtype)
+
+
+def _device_constants(detector: Detector, params: Params):
+    """(dtype, sensors (positions, normals, radius), params) as arrays of the params'
+    float dtype without weak typing, as the jitted batches take them."""
+    dtype = jnp.result_type(params.absorption_length)
+    cast = _strict_cast(dtype)
+    sensors = (
+        cast(detector.sensor_positions),
+        cast(detector.sensor_normals),
+        cast(detector.sensor_radius),
+    )
+    return dtype, sensors, jax.tree.map(cast, params)
+
+
+def _tally_batches(launch, n_batches: int, n_sensors: int, source_time: float, emitted: int):
+    """Run ``launch(index) -> (status, sensor, time)`` for every batch and tally them; each
+    batch is dispatched before the host work on the previous one."""
+    counts = np.zeros(N_STATUS, np.int64)
+    hit_sensors, hit_times = [np.zeros(0, np.int32)], [np.zeros(0)]
+    pending = launch(0) if n_batches else None
+    for index in range(n_batches):
+        current = pending
+        if index + 1 < n_batches:
+            pending = launch(index + 1)
+        status, sensor, time = (np.asarray(a) for a in current)
+        counts += np.bincount(status, minlength=N_STATUS)
+        detected = status == DETECTED
+        hit_sensors.append(sensor[detected])
+        hit_times.append(time[detected].astype(np.float64))
+    photon_sensor = np.concatenate(hit_sensors).astype(np.int32)
+    return PhotonTally(
+        n_pe=np.bincount(photon_sensor, minlength=n_sensors).astype(np.int64),
+        photon_sensor=photon_sensor,
+        photon_time=np.concatenate(hit_times),
+        source_time=float(source_time),
+        emitted=int(emitted),
+        detected=int(counts[DETECTED]),
+        absorbed_bulk=int(counts[ABSORBED_BULK]),
+        absorbed_wall=int(counts[ABSORBED_WALL]),
+        absorbed_sensor=int(counts[ABSORBED_SENSOR]),
+        escaped=int(counts[ESCAPED]),
+        capped=int(counts[CAPPED] + counts[ALIVE]),
+    )
 
 
 def sample_photons(
@@ -390,32 +553,16 @@ def sample_photons(
     check_source(source, detector)
     n_photons = photon_count(source)
     key = as_key(key)
-    if detector.shape.has_walls and grid is None:
-        grid = build_sensor_grid(detector)
-    if not detector.shape.has_walls:
-        grid = None
-
-    dtype = jnp.result_type(params.absorption_length)
-
-    def cast(leaf):
-        return jnp.asarray(leaf, dtype=dtype) + jnp.zeros((), dtype)  # drops weak typing
-
-    sensors = (
-        cast(detector.sensor_positions),
-        cast(detector.sensor_normals),
-        cast(detector.sensor_radius),
-    )
-    params_c = jax.tree.map(cast, params)
-    source_c = jax.tree.map(cast, source)
+    grid = _grid_for(detector, grid)
+    dtype, sensors, params_c = _device_constants(detector, params)
+    source_c = jax.tree.map(_strict_cast(dtype), source)
     batch = batch_size_for(n_photons, config)
-    n_batches = -(-n_photons // batch)
 
     def launch(index):
-        n_active = min(batch, n_photons - index * batch)
-        return _transport_batch(
+        return _transport_source_batch(
             key,
             jnp.uint32(index),
-            jnp.int32(n_active),
+            jnp.int32(min(batch, n_photons - index * batch)),
             sensors,
             grid,
             params_c,
@@ -425,32 +572,108 @@ def sample_photons(
             batch=batch,
         )
 
-    counts = np.zeros(N_STATUS, np.int64)
-    hit_sensors, hit_times = [], []
-    pending = launch(0)
-    for index in range(n_batches):
-        current = pending
-        if index + 1 < n_batches:
-            pending = launch(index + 1)  # dispatched before the host work on ``current``
-        status, sensor, time = (np.asarray(a) for a in current)
-        counts += np.bincount(status, minlength=N_STATUS)
-        detected = status == DETECTED
-        hit_sensors.append(sensor[detected])
-        hit_times.append(time[detected].astype(np.float64))
-    photon_sensor = np.concatenate(hit_sensors).astype(np.int32)
-    return PhotonTally(
-        n_pe=np.bincount(photon_sensor, minlength=detector.n_sensors).astype(np.int64),
-        photon_sensor=photon_sensor,
-        photon_time=np.concatenate(hit_times),
-        source_time=float(np.asarray(source.time)),
-        emitted=n_photons,
-        detected=int(counts[DETECTED]),
-        absorbed_bulk=int(counts[ABSORBED_BULK]),
-        absorbed_wall=int(counts[ABSORBED_WALL]),
-        absorbed_sensor=int(counts[ABSORBED_SENSOR]),
-        escaped=int(counts[ESCAPED]),
-        capped=int(counts[CAPPED] + counts[ALIVE]),
-    )
+    n_batches = -(-n_photons // batch)
+    source_time = float(np.asarray(source.time))
+    return _tally_batches(launch, n_batches, detector.n_sensors, source_time, n_photons)
+
+
+def check_bundle(photons, detector: Detector):
+    """(position (M, 3) m, direction (M, 3) unit, time (M,) ns) float64 arrays of a
+    photon bundle; a one-line ``ConfigError`` for bad shapes, non-finite values,
+    directions off unit length by more than ``DIRECTION_TOLERANCE`` or photons outside
+    the detector."""
+    position = np.asarray(photons.position, np.float64)
+    direction = np.asarray(photons.direction, np.float64)
+    time = np.asarray(photons.time, np.float64)
+    count = time.shape[0] if time.ndim == 1 else -1
+    for name, value, shape, text in (
+        ("position", position, (count, 3), "(M, 3)"),
+        ("direction", direction, (count, 3), "(M, 3)"),
+        ("time", time, (count,), "(M,)"),
+    ):
+        if value.shape != shape:
+            raise ConfigError(f"photons.{name}: shape {value.shape}, expected {text}")
+        if not np.isfinite(value).all():
+            raise ConfigError(f"photons.{name}: {int((~np.isfinite(value)).sum())} not finite")
+    off_unit = np.abs(np.linalg.norm(direction, axis=-1) - 1.0) > DIRECTION_TOLERANCE
+    if off_unit.any():
+        raise ConfigError(f"photons.direction: {int(off_unit.sum())} not unit vectors")
+    outside = np.asarray(detector.shape.distance_to_wall(position)) < 0
+    if outside.any():
+        raise ConfigError(
+            f"photons.position: {int(outside.sum())} outside the {detector.shape.describe()}"
+        )
+    return position, direction, time
+
+
+def _padded(array: np.ndarray, start: int, batch: int, fill, dtype) -> jax.Array:
+    """``array[start:start + batch]`` padded with ``fill`` rows to ``batch`` rows."""
+    rows = array[start : start + batch]
+    pad = np.broadcast_to(np.asarray(fill, array.dtype), (batch - rows.shape[0],) + rows.shape[1:])
+    return jnp.asarray(np.concatenate([rows, pad]), dtype)
+
+
+def sample_photon_bundle(
+    detector: Detector,
+    params: Params,
+    photons,
+    key,
+    *,
+    source_time: float = 0.0,
+    config: TransportConfig = DEFAULT_CONFIG,
+    grid: SensorGrid | None = None,
+) -> PhotonTally:
+    """Follow given photons one by one through the detector (Monte Carlo).
+
+    The transport loop, fates and tally are those of ``sample_photons``; each photon
+    starts at its own position, direction and time instead of a point source's.
+
+    Args:
+        detector: geometry and sensors (m).
+        params: optical and sensor parameters (lengths m, times ns); validated. The
+            transport is single-wavelength: every photon gets these values.
+        photons: anything with ``position`` (M, 3) m, ``direction`` (M, 3) unit and
+            ``time`` (M,) ns (e.g. ``photonflow.generator.Photons``), every photon
+            inside the detector; M may be 0. Checked with ``check_bundle``.
+        key: JAX PRNG key or integer seed; batch b draws from ``fold_in(key, b)``.
+        source_time: origin of the readout window, ns (a track's start time).
+        config: ``TransportConfig``; photons run in batches of at most ``batch_size``.
+        grid: the detector's ``SensorGrid`` (built here when None).
+
+    Returns:
+        A ``PhotonTally`` with emitted = M and detected + absorbed + lost == emitted.
+
+    Raises:
+        ConfigError: bad photons, parameters or config (one line).
+    """
+    check_config(config)
+    validate_params(params, detector.n_sensors)
+    position, direction, time = check_bundle(photons, detector)
+    key = as_key(key)
+    grid = _grid_for(detector, grid)
+    dtype, sensors, params_c = _device_constants(detector, params)
+    n_photons = int(time.shape[0])
+    batch = batch_size_for(n_photons, config)
+
+    def launch(index):
+        start = index * batch
+        return _transport_bundle_batch(
+            key,
+            jnp.uint32(index),
+            jnp.int32(min(batch, n_photons - start)),
+            sensors,
+            grid,
+            params_c,
+            _padded(position, start, batch, 0.0, dtype),
+            _padded(direction, start, batch, (0.0, 0.0, 1.0), dtype),
+            _padded(time, start, batch, 0.0, dtype),
+            shape=detector.shape,
+            config=config,
+            batch=batch,
+        )
+
+    n_batches = -(-n_photons // batch)
+    return _tally_batches(launch, n_batches, detector.n_sensors, source_time, n_photons)
 
 
 _SOURCE_KINDS = {IsotropicSource: "isotropic", LaserSource: "laser", DiffuserSource: "diffuser"}
@@ -477,27 +700,224 @@ def _check_seed(seed) -> int:
     return int(seed)
 
 
-def _event(detector, params, source, seed, index, config, grid) -> Event:
+# ---- particle tracks ------------------------------------------------------------------------
+
+
+class PhotonBundle(NamedTuple):
+    """Photons to transport: ``position`` (M, 3) m, unit ``direction`` (M, 3), emission
+    ``time`` (M,) ns."""
+
+    position: np.ndarray
+    direction: np.ndarray
+    time: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackLight:
+    """How a track's light is made for a detector.
+
+    Attributes:
+        medium: generator medium, "water" or "scintillator".
+        sensor: the sensor model whose spectral response thins the photons (the
+            detector's most common one, as in ``default_params``).
+        settings: generator settings (None: defaults).
+    """
+
+    medium: str
+    sensor: SensorModel
+    settings: GeneratorSettings | None = None
+
+
+def detector_medium(detector: Detector) -> str:
+    """The medium of a preset detector ("water" or "scintillator"); "water" for others."""
+    preset = PRESETS.get(detector.name)
+    return DEFAULT_MEDIUM if preset is None else preset.medium
+
+
+def principal_sensor_model(detector: Detector) -> SensorModel:
+    """The detector's most common sensor model (the one ``default_params`` reads)."""
+    counts = np.bincount(np.asarray(detector.sensor_type), minlength=len(detector.sensor_models))
+    return sensor_model(detector.sensor_models[int(np.argmax(counts))])
+
+
+def track_light(
+    detector: Detector, medium: str | None = None, settings: GeneratorSettings | None = None
+) -> TrackLight:
+    """``TrackLight`` for ``detector``: ``medium`` (default ``detector_medium``), its
+    principal sensor model and the generator ``settings``."""
+    medium = detector_medium(detector) if medium is None else medium
+    if medium not in MEDIA:
+        raise ConfigError(f"medium = {format_value(medium)}: must be one of {', '.join(MEDIA)}")
+    return TrackLight(medium, principal_sensor_model(detector), settings)
+
+
+def event_seeds(seed: int, index: int):
+    """(generator, spectral thinning, kinematics) ``SeedSequence``s of event ``index``:
+    the children of ``SeedSequence(seed, spawn_key=(index,))``."""
+    return np.random.SeedSequence(seed, spawn_key=(index,)).spawn(3)
+
+
+def track_photons(
+    detector: Detector, track: Track, seed: int, index: int, light: TrackLight
+) -> PhotonBundle:
+    """The generated photons of ``track`` (event ``index`` of ``seed``) that the
+    single-wavelength transport follows: those emitted inside the detector (light made
+    beyond the wall is dropped), each kept with ``spectral_keep_probability`` of its
+    wavelength for ``light.sensor``."""
+    generator_seed, thinning_seed, _ = event_seeds(seed, index)
+    photons = generate(track, generator_seed, medium=light.medium, settings=light.settings)
+    inside = np.asarray(detector.shape.distance_to_wall(np.asarray(photons.position))) >= 0
+    keep_probability = spectral_keep_probability(light.sensor, photons.wavelength)
+    kept = inside & (np.random.default_rng(thinning_seed).random(len(photons)) < keep_probability)
+    return PhotonBundle(photons.position[kept], photons.direction[kept], photons.time[kept])
+
+
+def spectral_params(params: Params, light: TrackLight) -> Params:
+    """``params`` with the QE raised by the sensor's ``peak_response`` (>= 1), the partner
+    of ``spectral_keep_probability``: kept photons are then detected with the QE at their
+    own wavelength, while ``params.quantum_efficiency`` stays the QE at 400 nm."""
+    return params.replace(
+        quantum_efficiency=params.quantum_efficiency * peak_response(light.sensor)
+    )
+
+
+def track_truth(track: Track, seed: int) -> Truth:
+    """The ``Truth`` of a track event: kind "track", particle, start position (m),
+    direction, kinetic energy (MeV), start time (ns) and the seed."""
+    return Truth(
+        source_kind="track",
+        particle=track.particle,
+        position=np.asarray(track.position, dtype=np.float64),
+        direction=np.asarray(track.direction, dtype=np.float64),
+        energy=float(track.energy),
+        time=float(track.time),
+        seed=int(seed),
+    )
+
+
+def check_track(track: Track, detector: Detector) -> Track:
+    """Raise a one-line ``ConfigError`` if the track starts outside the detector."""
+    distance = float(np.asarray(detector.shape.distance_to_wall(np.asarray(track.position))))
+    if distance < 0:
+        raise ConfigError(
+            f"track.position = {format_value(list(track.position))}: outside the "
+            f"{detector.shape.describe()} by {-distance:.3g} m"
+        )
+    return track
+
+
+def uniform_vertex(rng: np.random.Generator, detector: Detector, margin: float) -> np.ndarray:
+    """A point (3,) m uniform in the fiducial volume: inside the detector at least
+    ``margin`` m from every wall (rejection from the cube of side ``shape.extent``
+    about the origin, which holds every centred shape)."""
+    half = 0.5 * detector.shape.extent
+    while True:
+        points = rng.uniform(-half, half, size=(256, 3))
+        inside = np.asarray(detector.shape.distance_to_wall(points)) >= margin
+        if inside.any():
+            return points[np.argmax(inside)]
+
+
+def isotropic_direction(rng: np.random.Generator) -> np.ndarray:
+    """A unit vector (3,) uniform over the sphere."""
+    cos_theta, phi = 2.0 * rng.random() - 1.0, 2.0 * math.pi * rng.random()
+    sin_theta = math.sqrt(max(1.0 - cos_theta * cos_theta, 0.0))
+    return np.array([sin_theta * math.cos(phi), sin_theta * math.sin(phi), cos_theta])
+
+
+def random_tracks(
+    detector: Detector,
+    particle: str,
+    energy,
+    seed: int,
+    n_events: int,
+    *,
+    vertex="uniform-fiducial",
+    direction="isotropic",
+    fiducial_margin: float = 2.0,
+) -> list[Track]:
+    """``n_events`` tracks for ``sample_events(..., seed, n_events)``; track i draws its
+    vertex, direction and energy from the kinematics seed of ``event_seeds(seed, i)``.
+
+    Args:
+        detector: where the vertices lie (m).
+        particle: "mu-", "mu+", "e-", "e+" or "gamma".
+        energy: kinetic energy, MeV, or (low, high) for a uniform spectrum.
+        seed: the events' seed.
+        n_events: number of tracks.
+        vertex: "uniform-fiducial" (uniform in the detector at least ``fiducial_margin``
+            m from every wall) or a fixed point (3,) m.
+        direction: "isotropic" or a fixed unit vector (3,).
+        fiducial_margin: m, >= 0 and less than the detector's largest wall distance.
+
+    Raises:
+        ConfigError: bad energy range, margin or fixed vector (one line).
+    """
+    seed = _check_seed(seed)
+    low, high = (energy, energy) if isinstance(energy, numbers.Real) else energy
+    if not 0 < low <= high:
+        raise ConfigError(f"energy = {format_value(energy)}: must be > 0 MeV, low <= high")
+    depth = float(np.asarray(detector.shape.distance_to_wall(np.zeros(3))))
+    if vertex == "uniform-fiducial" and not 0 <= fiducial_margin < depth:
+        raise ConfigError(
+            f"fiducial margin = {format_value(fiducial_margin)} m: must be >= 0 and less than"
+            f" {depth:.3g} m (no fiducial volume left in the {detector.shape.describe()})"
+        )
+    tracks = []
+    for index in range(int(n_events)):
+        rng = np.random.default_rng(event_seeds(seed, index)[2])
+        fiducial = vertex == "uniform-fiducial"
+        start = uniform_vertex(rng, detector, fiducial_margin) if fiducial else vertex
+        heading = isotropic_direction(rng) if direction == "isotropic" else direction
+        kinetic = low if low == high else rng.uniform(low, high)
+        tracks.append(check_track(Track(particle, start, heading, kinetic), detector))
+    return tracks
+
+
+# ---- events -------------------------------------------------------------------------------
+
+
+def _event(detector, params, source, seed, index, config, grid, light) -> Event:
     """Event ``index`` of ``seed``: transport and response keys split from
-    ``fold_in(PRNGKey(seed), index)``."""
+    ``fold_in(PRNGKey(seed), index)``; a track's photons from ``track_photons``."""
     transport_key, response_key = jax.random.split(
         jax.random.fold_in(jax.random.PRNGKey(seed), index)
     )
-    tally = sample_photons(detector, params, source, transport_key, config=config, grid=grid)
-    return photoelectrons_to_event(
-        tally, params, response_key, config=config, truth=source_truth(source, seed)
-    )
+    if isinstance(source, Track):
+        tally = sample_photon_bundle(
+            detector,
+            spectral_params(params, light),
+            track_photons(detector, source, seed, index, light),
+            transport_key,
+            source_time=source.time,
+            config=config,
+            grid=grid,
+        )
+        truth = track_truth(source, seed)
+    else:
+        tally = sample_photons(detector, params, source, transport_key, config=config, grid=grid)
+        truth = source_truth(source, seed)
+    return photoelectrons_to_event(tally, params, response_key, config=config, truth=truth)
 
 
-def _prepare(detector, params, source, seed, config):
-    """Validate everything once; build the sensor grid of a walled detector."""
+def _check_any_source(source, detector: Detector) -> None:
+    """``check_track`` for a track, ``check_source`` and ``photon_count`` otherwise."""
+    if isinstance(source, Track):
+        check_track(source, detector)
+    else:
+        check_source(source, detector)
+        photon_count(source)
+
+
+def _prepare(detector, params, sources, seed, config, medium, generator):
+    """Validate everything once; (seed, sensor grid of a walled detector, TrackLight)."""
     seed = _check_seed(seed)
     check_config(config)
     validate_params(params, detector.n_sensors)
-    check_source(source, detector)
-    photon_count(source)
-    grid = build_sensor_grid(detector) if detector.shape.has_walls else None
-    return seed, grid
+    for source in sources:
+        _check_any_source(source, detector)
+    light = track_light(detector, medium, generator)
+    return seed, _grid_for(detector, None), light
 
 
 def sample(
@@ -507,21 +927,27 @@ def sample(
     seed: int,
     *,
     config: TransportConfig = DEFAULT_CONFIG,
+    medium: str | None = None,
+    generator: GeneratorSettings | None = None,
 ) -> Event:
-    """One Monte Carlo event (pseudo-data) of a calibration source.
+    """One Monte Carlo event (pseudo-data) of a calibration source or a particle track.
 
-    Photon transport (``sample_photons``) followed by the sensor response
-    (``photoelectrons_to_event``: transit-time spread, single-p.e. charges, dark noise,
-    readout window, threshold). Positions m, times ns, charges p.e. The same seed gives
-    the same event; ``sample(..., seed)`` equals the first event of
-    ``sample_events(..., seed, n)``.
+    A calibration source emits from its point (``sample_photons``); a ``Track`` is
+    generated (``photonflow.generate`` in ``medium``, default the detector preset's,
+    with ``generator`` settings) and its photons transported (``track_photons``,
+    ``sample_photon_bundle``; docs/transport.md, "Particle tracks in sampled mode").
+    Then the sensor response (``photoelectrons_to_event``: transit-time spread,
+    single-p.e. charges, dark noise, readout window from the source or track time,
+    threshold). Positions m, times ns, charges p.e. The same seed gives the same event;
+    ``sample(..., seed)`` equals the first event of ``sample_events(..., seed, n)``.
 
     Raises:
-        ConfigError: source outside the detector, n_photons < 1 after rounding, NaN or
-            out-of-domain parameters, bad config or seed (one line).
+        ConfigError: source or track start outside the detector, n_photons < 1 after
+            rounding, NaN or out-of-domain parameters, bad config, medium or seed (one
+            line).
     """
-    seed, grid = _prepare(detector, params, source, seed, config)
-    return _event(detector, params, source, seed, 0, config, grid)
+    seed, grid, light = _prepare(detector, params, [source], seed, config, medium, generator)
+    return _event(detector, params, source, seed, 0, config, grid, light)
 
 
 def sample_events(
@@ -532,25 +958,38 @@ def sample_events(
     n_events: int,
     *,
     config: TransportConfig = DEFAULT_CONFIG,
+    medium: str | None = None,
+    generator: GeneratorSettings | None = None,
     progress: bool = False,
 ):
-    """Yield ``n_events`` independent Monte Carlo events of the same source.
+    """Yield ``n_events`` independent Monte Carlo events.
 
-    Event i uses the key ``fold_in(PRNGKey(seed), i)``, so the same seed gives the same
-    events in the same order. ``progress=True`` shows a rich progress bar. Input is
-    validated before the first event (``ConfigError``, one line).
+    ``source`` is one calibration source or ``Track`` for every event, or a sequence of
+    ``n_events`` of them, event i from the i-th (e.g. ``random_tracks``); ``medium``
+    and ``generator`` as in ``sample``. Event i uses the key ``fold_in(PRNGKey(seed),
+    i)`` (and for a track the generator seeds of ``event_seeds(seed, i)``), so the same
+    seed gives the same events in the same order. ``progress=True`` shows a rich
+    progress bar. Input is validated before the first event (``ConfigError``, one line).
     """
     if not isinstance(n_events, numbers.Integral) or isinstance(n_events, bool) or n_events < 0:
         raise ConfigError(f"n_events = {format_value(n_events)}: must be an integer >= 0")
-    seed, grid = _prepare(detector, params, source, seed, config)
+    per_event = isinstance(source, list | tuple)
+    distinct = list(source) if per_event else [source]
+    if per_event and len(distinct) != n_events:
+        raise ConfigError(f"{len(distinct)} sources for n_events = {n_events}: need one per event")
+    seed, grid, light = _prepare(detector, params, distinct, seed, config, medium, generator)
+    sources = distinct if per_event else distinct * int(n_events)
+    events = (
+        _event(detector, params, source_i, seed, index, config, grid, light)
+        for index, source_i in enumerate(sources)
+    )
     if not progress:
-        for index in range(int(n_events)):
-            yield _event(detector, params, source, seed, index, config, grid)
+        yield from events
         return
     from rich.progress import Progress
 
     with Progress(transient=True) as bar:
         task = bar.add_task("sampling events", total=int(n_events))
-        for index in range(int(n_events)):
-            yield _event(detector, params, source, seed, index, config, grid)
+        for event in events:
+            yield event
             bar.advance(task)
