@@ -159,30 +159,103 @@ def parse_vector(text: str, option: str) -> tuple[float, float, float]:
     return values
 
 
+def parse_unit_vector(text: str, option: str) -> tuple[float, float, float]:
+    """``parse_vector`` normalised to unit length; a ``ConfigError`` for the zero vector."""
+    from .errors import ConfigError
+
+    values = parse_vector(text, option)
+    length = math.sqrt(sum(v * v for v in values))
+    if not length > 0:
+        raise ConfigError(f"{option} = {text!r}: must be a non-zero vector")
+    return (values[0] / length, values[1] / length, values[2] / length)
+
+
+def parse_energies(energy: float | None, energy_range: str | None):
+    """Kinetic energy (MeV) or (low, high) from ``--energy`` / ``--energy-range``;
+    exactly one must be given, within (0, MAXIMUM_ENERGY] MeV."""
+    from .errors import ConfigError
+    from .generator.track import MAXIMUM_ENERGY
+
+    if (energy is None) == (energy_range is None):
+        raise ConfigError("--energy / --energy-range: give exactly one for a --particle")
+    if energy is not None:
+        if not 0 < energy <= MAXIMUM_ENERGY:
+            raise ConfigError(f"--energy = {energy:g}: must be in (0, {MAXIMUM_ENERGY:g}] MeV")
+        return energy
+    parts = energy_range.split(",")
+    try:
+        low, high = (float(part) for part in parts)
+    except ValueError:
+        low = high = math.nan
+    if not 0 < low < high <= MAXIMUM_ENERGY:
+        raise ConfigError(
+            f"--energy-range = {energy_range!r}: expected LOW,HIGH MeV with"
+            f" 0 < LOW < HIGH <= {MAXIMUM_ENERGY:g}"
+        )
+    return (low, high)
+
+
+def track_sources(detector, particle, energy, energy_range, vertex, direction, margin, seed,
+                  events):
+    """The per-event ``Track``s of ``simulate --particle`` (``random_tracks``), with
+    one-line errors naming the option."""
+    from .errors import ConfigError
+    from .generator.particles import PARTICLES
+    from .transport.sampled import random_tracks
+
+    if particle not in PARTICLES:
+        raise ConfigError(f"--particle = {particle!r}: must be one of {', '.join(PARTICLES)}")
+    if vertex != "uniform-fiducial":
+        point = parse_vector(vertex, "--vertex")
+        if float(detector.shape.distance_to_wall(point)) < 0:
+            raise ConfigError(f"--vertex = {vertex!r}: outside the {detector.shape.describe()}")
+        vertex = point
+    if direction != "isotropic":
+        direction = parse_unit_vector(direction, "--direction")
+    if not (math.isfinite(margin) and margin >= 0):
+        raise ConfigError(f"--fiducial-margin = {margin:g}: must be >= 0 m")
+    return random_tracks(
+        detector, particle, parse_energies(energy, energy_range), seed, events,
+        vertex=vertex, direction=direction, fiducial_margin=margin,
+    )
+
+
 @command
 def simulate(
     out: Annotated[Path, typer.Option("--out", "-o", help="Event file to write (HDF5).")],
     detector: Annotated[str, typer.Option(
         "--detector", "-d", help="Preset name or configuration file.")] = "SK",
-    source: Annotated[str, typer.Option(
-        "--source", help="isotropic, laser or diffuser.")] = "isotropic",
+    source: Annotated[str | None, typer.Option(
+        "--source", help="isotropic (default), laser or diffuser.")] = None,
+    particle: Annotated[str | None, typer.Option(
+        help="Simulate particle tracks instead of a source: mu-, mu+, e-, e+, gamma.")] = None,
+    energy: Annotated[float | None, typer.Option(
+        help="Track kinetic energy, MeV.")] = None,
+    energy_range: Annotated[str | None, typer.Option(
+        "--energy-range", help="Track kinetic energy uniform in LOW,HIGH MeV.")] = None,
+    vertex: Annotated[str, typer.Option(
+        help="Track start: uniform-fiducial or x,y,z in m.")] = "uniform-fiducial",
+    fiducial_margin: Annotated[float, typer.Option(
+        "--fiducial-margin", help="Fiducial volume: this far (m) from every wall.")] = 2.0,
     position: Annotated[str, typer.Option(help="Source position x,y,z in m.")] = "0,0,0",
     direction: Annotated[str | None, typer.Option(
-        help="Laser/diffuser axis x,y,z (normalised).")] = None,
+        help="Laser/diffuser axis x,y,z, or track direction: isotropic (default for"
+             " tracks) or x,y,z (normalised).")] = None,
     opening_angle: Annotated[float | None, typer.Option(
         "--opening-angle", help="Laser cone half-angle, rad.")] = None,
     anisotropy: Annotated[float, typer.Option(help="Diffuser anisotropy a in [-1, 1].")] = 0.0,
     photons: Annotated[float, typer.Option(help="Photons per pulse.")] = 1e6,
     pulse_width: Annotated[float, typer.Option(
         "--pulse-width", help="Source pulse width (Gaussian sigma), ns.")] = 0.0,
-    events: Annotated[int, typer.Option(help="Number of events (pulses).")] = 1,
+    events: Annotated[int, typer.Option(help="Number of events (pulses or tracks).")] = 1,
     seed: Annotated[int, typer.Option(help="Random seed (same seed, same events).")] = 0,
     bounces: Annotated[int, typer.Option(
         help="Scatterings/reflections followed per photon.")] = 2,
     mode: Annotated[str, typer.Option(
         help="create (refuse to overwrite), recreate or append.")] = "create",
 ) -> None:
-    """Simulate calibration-source events photon by photon and write them to a file."""
+    """Simulate calibration-source or particle-track events photon by photon and write
+    them to a file (tracks: vertex, direction and energy drawn per event from the seed)."""
     from .config import load_setup
     from .errors import ConfigError
     from .io import write_events
@@ -195,17 +268,25 @@ def simulate(
         raise ConfigError(f"--events = {events}: must be >= 1")
     if bounces < 0:
         raise ConfigError(f"--bounces = {bounces}: must be >= 0")
+    if particle is not None and source is not None:
+        raise ConfigError(f"--source = {source!r}: not with --particle (choose one)")
     setup = load_setup(detector)
-    light = make_source(
-        source, parse_vector(position, "--position"), photons,
-        direction=None if direction is None else parse_vector(direction, "--direction"),
-        opening_angle=opening_angle, anisotropy=anisotropy, pulse_width=pulse_width,
-    )
-    check_source(light, setup.detector)
+    if particle is not None:
+        light = track_sources(
+            setup.detector, particle, energy, energy_range, vertex, direction or "isotropic",
+            fiducial_margin, seed, events,
+        )
+    else:
+        light = make_source(
+            source or "isotropic", parse_vector(position, "--position"), photons,
+            direction=None if direction is None else parse_vector(direction, "--direction"),
+            opening_angle=opening_angle, anisotropy=anisotropy, pulse_width=pulse_width,
+        )
+        check_source(light, setup.detector)
     validate_params(setup.params, setup.detector.n_sensors)
     stream = sample_events(
         setup.detector, setup.params, light, seed, events,
-        config=TransportConfig(n_bounces=bounces), progress=True,
+        config=TransportConfig(n_bounces=bounces), medium=setup.medium, progress=True,
     )
     path = write_events(out, stream, setup.detector, setup.params, mode=mode)
     console().print(
@@ -289,6 +370,54 @@ def benchmark_transport_command(
         cells.append(f"{row['compile_forward_s']:.1f} / {row['compile_grad_s']:.1f}")
         table.add_row(*cells)
     console().print(table)
+
+
+tables_app = typer.Typer(help="Emission tables of the particle generator.",
+                         no_args_is_help=True)
+app.add_typer(tables_app, name="tables")
+
+
+@tables_app.command("build")
+def tables_build(
+    particle: Annotated[str, typer.Option(help="mu-, mu+, e-, e+ or gamma.")],
+    out: Annotated[Path, typer.Option(help="HDF5 file to write (resumed if it exists).")],
+    energies: Annotated[
+        str | None, typer.Option(help="Comma-separated kinetic energies, MeV.")
+    ] = None,
+    per_energy: Annotated[int, typer.Option(help="Particles per energy.")] = 20,
+    seed: Annotated[int, typer.Option(help="Seed of the whole table.")] = 0,
+    medium: Annotated[str, typer.Option(help="water or scintillator.")] = "water",
+    yield_scale: Annotated[
+        float, typer.Option(help="Photon yield scale while building (counts are rescaled).")
+    ] = 1.0,
+) -> None:
+    """Build an emission table (photons per particle by distance, angle and time offset
+    along the initial direction) for an energy grid; resumes an interrupted build."""
+    from .generator import GeneratorSettings
+    from .generator.emission_tables import DEFAULT_ENERGIES, build_table
+
+    try:
+        grid = DEFAULT_ENERGIES if energies is None else _parse_floats(energies, "--energies")
+        table = build_table(
+            particle, grid, per_energy, seed=seed, medium=medium,
+            settings=GeneratorSettings(yield_scale=yield_scale), resume=out, progress=True,
+        )
+    except PhotonflowError as error:
+        raise fail(str(error)) from None
+    console().print(
+        f"{out}: {particle} in {medium}, {len(table.energies)} energies x {per_energy},"
+        f" {table.total_yield[-1]:.3g} photons at {table.energies[-1]:g} MeV"
+    )
+
+
+def _parse_floats(text: str, option: str) -> tuple[float, ...]:
+    """Comma-separated numbers; ``ConfigError`` naming the option otherwise."""
+    from .errors import ConfigError
+
+    try:
+        return tuple(float(part) for part in text.split(","))
+    except ValueError:
+        raise ConfigError(f"{option} = {text!r}: expected comma-separated numbers") from None
 
 
 def main() -> None:
