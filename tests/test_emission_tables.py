@@ -1,0 +1,81 @@
+"""Emission tables of the particle generator: content, file format and resume."""
+
+import numpy as np
+import pytest
+
+from photonflow.errors import ConfigError
+from photonflow.generator import GeneratorSettings
+from photonflow.generator import emission_tables as tables
+from photonflow.generator.materials import WATER, refractive_index
+
+FAST = GeneratorSettings(yield_scale=0.05)
+
+
+@pytest.fixture(scope="module")
+def muon_table():
+    return tables.build_table("mu-", [300.0, 1000.0], 3, seed=7, settings=FAST)
+
+
+def test_muon_table_matches_range_and_cherenkov_angle(muon_table):
+    """Mean path length against the CSDA range (PDG-format table, physics.md section 3:
+    129.1 and 473.2 g/cm^2 at 300 and 1000 MeV, i.e. m at 1 g/cm^3) within 3 %; the
+    angular peak at cos(theta_c) = 1 / (n beta) with n(400 nm) (the band's middle);
+    every photon of a muon that stops within the 25 m range is in the table."""
+    np.testing.assert_allclose(muon_table.track_length, [1.291, 4.732], rtol=0.03)
+    np.testing.assert_allclose(muon_table.photons.sum(axis=(1, 2)), muon_table.total_yield)
+    width = np.diff(muon_table.cos_edges)[0]
+    cos_c = 1.0 / float(refractive_index(WATER, 400.0))
+    peak = tables.cherenkov_peak_cos(muon_table)
+    assert abs(peak[1] - cos_c) < 2 * width  # 1 GeV: beta = 0.995
+    assert peak[0] > peak[1]  # slower muon, narrower cone
+    # the light-speed front: a beta ~ 1 muon's photons are emitted within ~1 ns of it
+    times = muon_table.time_offsets[1].sum(axis=0)
+    centres = 0.5 * (muon_table.time_edges[1:] + muon_table.time_edges[:-1])
+    assert abs(np.average(centres, weights=times)) < 1.0
+
+
+def test_same_seed_same_table_and_resume_after_interruption(tmp_path, monkeypatch):
+    """An interrupted build resumed from its file equals an uninterrupted one."""
+    energies = [200.0, 400.0, 800.0]
+    reference = tables.build_table("e-", energies, 2, seed=3, settings=FAST)
+    path = tmp_path / "e.h5"
+    real_row = tables._energy_row
+    calls = []
+
+    def failing_row(*args):
+        calls.append(args[1])
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real_row(*args)
+
+    monkeypatch.setattr(tables, "_energy_row", failing_row)
+    with pytest.raises(KeyboardInterrupt):
+        tables.build_table("e-", energies, 2, seed=3, settings=FAST, resume=path)
+    with pytest.raises(ConfigError, match="1 of 3 energies built"):
+        tables.load_table(path)
+    monkeypatch.setattr(tables, "_energy_row", real_row)
+    resumed = tables.build_table("e-", energies, 2, seed=3, settings=FAST, resume=path)
+    loaded = tables.load_table(path)
+    for name in ("photons", "time_offsets", "total_yield", "yield_spread", "track_length"):
+        np.testing.assert_array_equal(getattr(resumed, name), getattr(reference, name))
+        np.testing.assert_array_equal(getattr(loaded, name), getattr(reference, name))
+    assert loaded.settings["seed"] == 3 and loaded.settings["generator"]["yield_scale"] == 0.05
+    with pytest.raises(ConfigError, match="different build"):
+        tables.build_table("e-", energies, 2, seed=4, settings=FAST, resume=path)
+
+
+def test_bad_input_and_foreign_files(tmp_path):
+    with pytest.raises(ConfigError, match="particle = 'proton'"):
+        tables.build_table("proton", [100.0], 1)
+    with pytest.raises(ConfigError, match="energies"):
+        tables.build_table("mu-", [500.0, 100.0], 1)
+    with pytest.raises(ConfigError, match="per_energy = 0"):
+        tables.build_table("mu-", [100.0], 0)
+    with pytest.raises(ConfigError, match="cannot be read"):
+        tables.load_table(tmp_path / "missing.h5")
+    import h5py
+
+    with h5py.File(tmp_path / "old.h5", "w") as handle:
+        handle.attrs["schema_version"] = 99
+    with pytest.raises(ConfigError, match="schema_version = 99"):
+        tables.load_table(tmp_path / "old.h5")
