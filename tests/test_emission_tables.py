@@ -79,3 +79,44 @@ def test_bad_input_and_foreign_files(tmp_path):
         handle.attrs["schema_version"] = 99
     with pytest.raises(ConfigError, match="schema_version = 99"):
         tables.load_table(tmp_path / "old.h5")
+
+
+def test_shipped_tables_load_and_hold_the_reference_physics():
+    """The tables inside the package: muon path length against the CSDA range of the
+    PDG-format table (physics.md section 3: 31.23 g/cm^2 at 100 MeV ... 2235 at 5 GeV,
+    interpolated in log-log) within 3 %; electron light per GeV within 5 % of the
+    Radel-Wiebusch 1.65e5 photons/GeV in 300-600 nm (physics.md section 3) above 1 GeV."""
+    muons = tables.shipped_table("mu-")
+    electrons = tables.shipped_table("e-", "water")
+    kinetic = np.array([100, 200, 300, 500, 1000, 2000, 5000, 10000], float)
+    csda_cm = np.array([31.23, 78.90, 129.1, 229.6, 473.2, 935.6, 2235, 4282])
+    expected_m = np.exp(np.interp(np.log(muons.energies), np.log(kinetic), np.log(csda_cm))) / 100
+    np.testing.assert_allclose(muons.track_length, expected_m, rtol=0.03)
+    high = electrons.energies >= 1000.0
+    per_gev = electrons.total_yield[high] / (electrons.energies[high] / 1000.0)
+    np.testing.assert_allclose(per_gev, 1.65e5, rtol=0.05)
+    assert muons.settings["generator"]["yield_scale"] == 0.2 and muons.per_energy == 20
+    with pytest.raises(ConfigError, match="no shipped emission table"):
+        tables.shipped_table("gamma")
+
+
+def test_tables_build_command(tmp_path):
+    """``photonflow tables build`` writes a loadable table; bad input exits with code 2,
+    one line, and no file."""
+    from typer.testing import CliRunner
+
+    from photonflow.cli import app
+
+    out = tmp_path / "mu.h5"
+    runner = CliRunner()
+    done = runner.invoke(app, ["tables", "build", "--particle", "mu-", "--energies", "200,400",
+                               "--per-energy", "1", "--yield-scale", "0.02", "--out", str(out)])
+    assert done.exit_code == 0, done.output
+    assert list(tables.load_table(out).energies) == [200.0, 400.0]
+    bad = tmp_path / "bad.h5"
+    for arguments in (["--particle", "proton"], ["--particle", "mu-", "--energies", "1,x"],
+                      ["--particle", "mu-", "--yield-scale", "0"]):
+        failed = runner.invoke(app, ["tables", "build", *arguments, "--out", str(bad)])
+        assert failed.exit_code == 2
+        assert failed.output.count("error:") == 1
+        assert not bad.exists()
