@@ -16,12 +16,11 @@ from photonflow.geometry.layouts import fibonacci_sphere_layout
 from photonflow.geometry.shapes import Sphere
 from photonflow.photosensors import peak_response, sensor_model, spectral_keep_probability
 from photonflow.transport import SPEED_OF_LIGHT
-from photonflow.transport.sampled import (
+from photonflow.transport.sampled import sample_photon_bundle, sample_photons
+from photonflow.transport.tracks import (
     PhotonBundle,
     event_seeds,
     random_tracks,
-    sample_photon_bundle,
-    sample_photons,
     track_light,
     track_photons,
 )

@@ -44,7 +44,7 @@ def transport_case(detector_name: str, case: str, photons: float, repeats: int,
     from .sources import IsotropicSource
     from .transport.expected import expected
     from .transport.optics import TransportConfig
-    from .transport.sampled import sample as sample_event
+    from .transport.pseudo_data import sample as sample_event
     from .transport.sampled import sample_photons
 
     setup = load_setup(detector_name)

@@ -201,7 +201,7 @@ def track_sources(detector, particle, energy, energy_range, vertex, direction, m
     one-line errors naming the option."""
     from .errors import ConfigError
     from .generator.particles import PARTICLES
-    from .transport.sampled import random_tracks
+    from .transport.tracks import random_tracks
 
     if particle not in PARTICLES:
         raise ConfigError(f"--particle = {particle!r}: must be one of {', '.join(PARTICLES)}")
@@ -262,7 +262,7 @@ def simulate(
     from .params import validate_params
     from .sources import check_source, make_source
     from .transport.optics import TransportConfig
-    from .transport.sampled import sample_events
+    from .transport.pseudo_data import sample_events
 
     if events < 1:
         raise ConfigError(f"--events = {events}: must be >= 1")

@@ -95,7 +95,7 @@ def calibration_run_step(name: str) -> Step:
         from .spe import single_pe_moments
         from .transport.expected import expected
         from .transport.optics import TransportConfig
-        from .transport.sampled import sample_events
+        from .transport.pseudo_data import sample_events
         from .viz import plot_event
 
         setup = load_setup(name)

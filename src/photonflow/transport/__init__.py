@@ -5,15 +5,10 @@ mode) and photon-by-photon Monte Carlo (sampled mode), on one description of the
 from .direct import SPEED_OF_LIGHT, direct_light, direct_light_jit, interpolate_acceptance
 from .expected import expected
 from .optics import TransportConfig
-from .sampled import (
-    PhotonBundle,
-    random_tracks,
-    sample,
-    sample_events,
-    sample_photon_bundle,
-    sample_photons,
-)
+from .pseudo_data import sample, sample_events
+from .sampled import sample_photon_bundle, sample_photons
 from .solid_angle import disc_solid_angle, plane_basis
+from .tracks import PhotonBundle, random_tracks
 
 __all__ = [
     "SPEED_OF_LIGHT",

@@ -34,9 +34,8 @@ still alive, gathered into chunks of batch / ``COMPACTION`` lanes, and works on 
 component arrays (structure of arrays), which XLA on CPU fuses into a few loops per
 chunk. Lengths in m, times in ns.
 
-Particle tracks (``sample`` / ``sample_events`` with a ``Track``): generated photons,
-thinned by the sensor's spectral response, transported as a bundle; see
-docs/transport.md, "Particle tracks in sampled mode".
+Events (transport + sensor response) of sources and particle tracks: ``pseudo_data.py``;
+the photons of a track: ``tracks.py``.
 """
 
 from __future__ import annotations
@@ -51,28 +50,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..config.loader import DEFAULT_MEDIUM
 from ..errors import ConfigError, format_value
-from ..generator import GeneratorSettings, Track, generate
 from ..geometry.detector import Detector
-from ..geometry.presets import PRESETS
 from ..geometry.sensor_grid import SensorGrid, build_sensor_grid, first_sensor_hit_xyz
 from ..geometry.shapes import xyz
-from ..io.events import Event, Truth
-from ..medium import MEDIA
 from ..params import Params, validate_params
-from ..photosensors import (
-    SensorModel,
-    peak_response,
-    sensor_model,
-    spectral_keep_probability,
-)
-from ..response import DEFAULT_CONFIG, photoelectrons_to_event
+from ..response import DEFAULT_CONFIG
 from ..sources import (
     DIRECTION_TOLERANCE,
-    DiffuserSource,
-    IsotropicSource,
-    LaserSource,
     check_source,
 )
 from .emission import sample_directions
@@ -191,7 +176,7 @@ def batch_size_for(n_photons: int, config: TransportConfig) -> int:
 # fuses the component-wise arithmetic of a step into a few loops over the batch.
 
 
-class Photons(NamedTuple):
+class PhotonState(NamedTuple):
     """A batch of photons in the transport loop, each field (B,).
 
     Attributes:
@@ -217,7 +202,7 @@ class Photons(NamedTuple):
 
 #: Values of the lanes of a chunk that hold no photon (a unit direction keeps their
 #: arithmetic finite; their results are dropped).
-_EMPTY = Photons((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0.0, 0.0, 0, UNUSED, -1)
+_EMPTY = PhotonState((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0.0, 0.0, 0, UNUSED, -1)
 
 
 def _uniforms(key, count: int, shape, dtype):
@@ -340,7 +325,7 @@ def _step_function(shape, config, sensors, grid, params):
         nudge = jnp.where(bulk, 0.0, NUDGE)  # reflected photons leave the surface
         position = tuple(p + nudge * d for p, d in zip(point, new_dir, strict=True))
         # Written unconditionally: what a photon that ended carries is never read again.
-        return Photons(
+        return PhotonState(
             position=position,
             direction=new_dir,
             wall=_wall_distance(shape, position, new_dir),
@@ -353,10 +338,10 @@ def _step_function(shape, config, sensors, grid, params):
     return step
 
 
-def _launch_photons(shape, position, direction, n_active, batch: int, dtype) -> Photons:
+def _launch_photons(shape, position, direction, n_active, batch: int, dtype) -> PhotonState:
     """The ``batch`` lanes of a fresh batch: the first ``n_active`` ALIVE at their emission
     ``position`` (m) and unit ``direction`` (x, y, z tuples of (B,)), the rest UNUSED."""
-    return Photons(
+    return PhotonState(
         position=position,
         direction=direction,
         wall=_wall_distance(shape, position, direction),
@@ -676,320 +661,8 @@ def sample_photon_bundle(
     return _tally_batches(launch, n_batches, detector.n_sensors, source_time, n_photons)
 
 
-_SOURCE_KINDS = {IsotropicSource: "isotropic", LaserSource: "laser", DiffuserSource: "diffuser"}
-
-
-def source_truth(source, seed: int) -> Truth:
-    """The ``Truth`` of a calibration-source event: kind, position (m), direction (unit;
-    NaN for the isotropic source), time (ns) and the seed."""
-    direction = getattr(source, "direction", None)
-    return Truth(
-        source_kind=_SOURCE_KINDS.get(type(source), type(source).__name__),
-        position=np.asarray(source.position, dtype=np.float64),
-        direction=(
-            np.full(3, np.nan) if direction is None else np.asarray(direction, dtype=np.float64)
-        ),
-        time=float(np.asarray(source.time)),
-        seed=int(seed),
-    )
-
-
-def _check_seed(seed) -> int:
+def check_seed(seed) -> int:
+    """``seed`` as an int; a one-line ``ConfigError`` unless it is an integer in [0, 2^63)."""
     if not isinstance(seed, numbers.Integral) or isinstance(seed, bool) or not 0 <= seed < 2**63:
         raise ConfigError(f"seed = {format_value(seed)}: must be an integer in [0, 2**63)")
     return int(seed)
-
-
-# ---- particle tracks ------------------------------------------------------------------------
-
-
-class PhotonBundle(NamedTuple):
-    """Photons to transport: ``position`` (M, 3) m, unit ``direction`` (M, 3), emission
-    ``time`` (M,) ns."""
-
-    position: np.ndarray
-    direction: np.ndarray
-    time: np.ndarray
-
-
-@dataclasses.dataclass(frozen=True)
-class TrackLight:
-    """How a track's light is made for a detector.
-
-    Attributes:
-        medium: generator medium, "water" or "scintillator".
-        sensor: the sensor model whose spectral response thins the photons (the
-            detector's most common one, as in ``default_params``).
-        settings: generator settings (None: defaults).
-    """
-
-    medium: str
-    sensor: SensorModel
-    settings: GeneratorSettings | None = None
-
-
-def detector_medium(detector: Detector) -> str:
-    """The medium of a preset detector ("water" or "scintillator"); "water" for others."""
-    preset = PRESETS.get(detector.name)
-    return DEFAULT_MEDIUM if preset is None else preset.medium
-
-
-def principal_sensor_model(detector: Detector) -> SensorModel:
-    """The detector's most common sensor model (the one ``default_params`` reads)."""
-    counts = np.bincount(np.asarray(detector.sensor_type), minlength=len(detector.sensor_models))
-    return sensor_model(detector.sensor_models[int(np.argmax(counts))])
-
-
-def track_light(
-    detector: Detector, medium: str | None = None, settings: GeneratorSettings | None = None
-) -> TrackLight:
-    """``TrackLight`` for ``detector``: ``medium`` (default ``detector_medium``), its
-    principal sensor model and the generator ``settings``."""
-    medium = detector_medium(detector) if medium is None else medium
-    if medium not in MEDIA:
-        raise ConfigError(f"medium = {format_value(medium)}: must be one of {', '.join(MEDIA)}")
-    return TrackLight(medium, principal_sensor_model(detector), settings)
-
-
-def event_seeds(seed: int, index: int):
-    """(generator, spectral thinning, kinematics) ``SeedSequence``s of event ``index``:
-    the children of ``SeedSequence(seed, spawn_key=(index,))``."""
-    return np.random.SeedSequence(seed, spawn_key=(index,)).spawn(3)
-
-
-def track_photons(
-    detector: Detector, track: Track, seed: int, index: int, light: TrackLight
-) -> PhotonBundle:
-    """The generated photons of ``track`` (event ``index`` of ``seed``) that the
-    single-wavelength transport follows: those emitted inside the detector (light made
-    beyond the wall is dropped), each kept with ``spectral_keep_probability`` of its
-    wavelength for ``light.sensor``."""
-    generator_seed, thinning_seed, _ = event_seeds(seed, index)
-    photons = generate(track, generator_seed, medium=light.medium, settings=light.settings)
-    inside = np.asarray(detector.shape.distance_to_wall(np.asarray(photons.position))) >= 0
-    keep_probability = spectral_keep_probability(light.sensor, photons.wavelength)
-    kept = inside & (np.random.default_rng(thinning_seed).random(len(photons)) < keep_probability)
-    return PhotonBundle(photons.position[kept], photons.direction[kept], photons.time[kept])
-
-
-def spectral_params(params: Params, light: TrackLight) -> Params:
-    """``params`` with the QE raised by the sensor's ``peak_response`` (>= 1), the partner
-    of ``spectral_keep_probability``: kept photons are then detected with the QE at their
-    own wavelength, while ``params.quantum_efficiency`` stays the QE at 400 nm."""
-    return params.replace(
-        quantum_efficiency=params.quantum_efficiency * peak_response(light.sensor)
-    )
-
-
-def track_truth(track: Track, seed: int) -> Truth:
-    """The ``Truth`` of a track event: kind "track", particle, start position (m),
-    direction, kinetic energy (MeV), start time (ns) and the seed."""
-    return Truth(
-        source_kind="track",
-        particle=track.particle,
-        position=np.asarray(track.position, dtype=np.float64),
-        direction=np.asarray(track.direction, dtype=np.float64),
-        energy=float(track.energy),
-        time=float(track.time),
-        seed=int(seed),
-    )
-
-
-def check_track(track: Track, detector: Detector) -> Track:
-    """Raise a one-line ``ConfigError`` if the track starts outside the detector."""
-    distance = float(np.asarray(detector.shape.distance_to_wall(np.asarray(track.position))))
-    if distance < 0:
-        raise ConfigError(
-            f"track.position = {format_value(list(track.position))}: outside the "
-            f"{detector.shape.describe()} by {-distance:.3g} m"
-        )
-    return track
-
-
-def uniform_vertex(rng: np.random.Generator, detector: Detector, margin: float) -> np.ndarray:
-    """A point (3,) m uniform in the fiducial volume: inside the detector at least
-    ``margin`` m from every wall (rejection from the cube of side ``shape.extent``
-    about the origin, which holds every centred shape)."""
-    half = 0.5 * detector.shape.extent
-    while True:
-        points = rng.uniform(-half, half, size=(256, 3))
-        inside = np.asarray(detector.shape.distance_to_wall(points)) >= margin
-        if inside.any():
-            return points[np.argmax(inside)]
-
-
-def isotropic_direction(rng: np.random.Generator) -> np.ndarray:
-    """A unit vector (3,) uniform over the sphere."""
-    cos_theta, phi = 2.0 * rng.random() - 1.0, 2.0 * math.pi * rng.random()
-    sin_theta = math.sqrt(max(1.0 - cos_theta * cos_theta, 0.0))
-    return np.array([sin_theta * math.cos(phi), sin_theta * math.sin(phi), cos_theta])
-
-
-def random_tracks(
-    detector: Detector,
-    particle: str,
-    energy,
-    seed: int,
-    n_events: int,
-    *,
-    vertex="uniform-fiducial",
-    direction="isotropic",
-    fiducial_margin: float = 2.0,
-) -> list[Track]:
-    """``n_events`` tracks for ``sample_events(..., seed, n_events)``; track i draws its
-    vertex, direction and energy from the kinematics seed of ``event_seeds(seed, i)``.
-
-    Args:
-        detector: where the vertices lie (m).
-        particle: "mu-", "mu+", "e-", "e+" or "gamma".
-        energy: kinetic energy, MeV, or (low, high) for a uniform spectrum.
-        seed: the events' seed.
-        n_events: number of tracks.
-        vertex: "uniform-fiducial" (uniform in the detector at least ``fiducial_margin``
-            m from every wall) or a fixed point (3,) m.
-        direction: "isotropic" or a fixed unit vector (3,).
-        fiducial_margin: m, >= 0 and less than the detector's largest wall distance.
-
-    Raises:
-        ConfigError: bad energy range, margin or fixed vector (one line).
-    """
-    seed = _check_seed(seed)
-    low, high = (energy, energy) if isinstance(energy, numbers.Real) else energy
-    if not 0 < low <= high:
-        raise ConfigError(f"energy = {format_value(energy)}: must be > 0 MeV, low <= high")
-    depth = float(np.asarray(detector.shape.distance_to_wall(np.zeros(3))))
-    if vertex == "uniform-fiducial" and not 0 <= fiducial_margin < depth:
-        raise ConfigError(
-            f"fiducial margin = {format_value(fiducial_margin)} m: must be >= 0 and less than"
-            f" {depth:.3g} m (no fiducial volume left in the {detector.shape.describe()})"
-        )
-    tracks = []
-    for index in range(int(n_events)):
-        rng = np.random.default_rng(event_seeds(seed, index)[2])
-        fiducial = vertex == "uniform-fiducial"
-        start = uniform_vertex(rng, detector, fiducial_margin) if fiducial else vertex
-        heading = isotropic_direction(rng) if direction == "isotropic" else direction
-        kinetic = low if low == high else rng.uniform(low, high)
-        tracks.append(check_track(Track(particle, start, heading, kinetic), detector))
-    return tracks
-
-
-# ---- events -------------------------------------------------------------------------------
-
-
-def _event(detector, params, source, seed, index, config, grid, light) -> Event:
-    """Event ``index`` of ``seed``: transport and response keys split from
-    ``fold_in(PRNGKey(seed), index)``; a track's photons from ``track_photons``."""
-    transport_key, response_key = jax.random.split(
-        jax.random.fold_in(jax.random.PRNGKey(seed), index)
-    )
-    if isinstance(source, Track):
-        tally = sample_photon_bundle(
-            detector,
-            spectral_params(params, light),
-            track_photons(detector, source, seed, index, light),
-            transport_key,
-            source_time=source.time,
-            config=config,
-            grid=grid,
-        )
-        truth = track_truth(source, seed)
-    else:
-        tally = sample_photons(detector, params, source, transport_key, config=config, grid=grid)
-        truth = source_truth(source, seed)
-    return photoelectrons_to_event(tally, params, response_key, config=config, truth=truth)
-
-
-def _check_any_source(source, detector: Detector) -> None:
-    """``check_track`` for a track, ``check_source`` and ``photon_count`` otherwise."""
-    if isinstance(source, Track):
-        check_track(source, detector)
-    else:
-        check_source(source, detector)
-        photon_count(source)
-
-
-def _prepare(detector, params, sources, seed, config, medium, generator):
-    """Validate everything once; (seed, sensor grid of a walled detector, TrackLight)."""
-    seed = _check_seed(seed)
-    check_config(config)
-    validate_params(params, detector.n_sensors)
-    for source in sources:
-        _check_any_source(source, detector)
-    light = track_light(detector, medium, generator)
-    return seed, _grid_for(detector, None), light
-
-
-def sample(
-    detector: Detector,
-    params: Params,
-    source,
-    seed: int,
-    *,
-    config: TransportConfig = DEFAULT_CONFIG,
-    medium: str | None = None,
-    generator: GeneratorSettings | None = None,
-) -> Event:
-    """One Monte Carlo event (pseudo-data) of a calibration source or a particle track.
-
-    A calibration source emits from its point (``sample_photons``); a ``Track`` is
-    generated (``photonflow.generate`` in ``medium``, default the detector preset's,
-    with ``generator`` settings) and its photons transported (``track_photons``,
-    ``sample_photon_bundle``; docs/transport.md, "Particle tracks in sampled mode").
-    Then the sensor response (``photoelectrons_to_event``: transit-time spread,
-    single-p.e. charges, dark noise, readout window from the source or track time,
-    threshold). Positions m, times ns, charges p.e. The same seed gives the same event;
-    ``sample(..., seed)`` equals the first event of ``sample_events(..., seed, n)``.
-
-    Raises:
-        ConfigError: source or track start outside the detector, n_photons < 1 after
-            rounding, NaN or out-of-domain parameters, bad config, medium or seed (one
-            line).
-    """
-    seed, grid, light = _prepare(detector, params, [source], seed, config, medium, generator)
-    return _event(detector, params, source, seed, 0, config, grid, light)
-
-
-def sample_events(
-    detector: Detector,
-    params: Params,
-    source,
-    seed: int,
-    n_events: int,
-    *,
-    config: TransportConfig = DEFAULT_CONFIG,
-    medium: str | None = None,
-    generator: GeneratorSettings | None = None,
-    progress: bool = False,
-):
-    """Yield ``n_events`` independent Monte Carlo events.
-
-    ``source`` is one calibration source or ``Track`` for every event, or a sequence of
-    ``n_events`` of them, event i from the i-th (e.g. ``random_tracks``); ``medium``
-    and ``generator`` as in ``sample``. Event i uses the key ``fold_in(PRNGKey(seed),
-    i)`` (and for a track the generator seeds of ``event_seeds(seed, i)``), so the same
-    seed gives the same events in the same order. ``progress=True`` shows a rich
-    progress bar. Input is validated before the first event (``ConfigError``, one line).
-    """
-    if not isinstance(n_events, numbers.Integral) or isinstance(n_events, bool) or n_events < 0:
-        raise ConfigError(f"n_events = {format_value(n_events)}: must be an integer >= 0")
-    per_event = isinstance(source, list | tuple)
-    distinct = list(source) if per_event else [source]
-    if per_event and len(distinct) != n_events:
-        raise ConfigError(f"{len(distinct)} sources for n_events = {n_events}: need one per event")
-    seed, grid, light = _prepare(detector, params, distinct, seed, config, medium, generator)
-    sources = distinct if per_event else distinct * int(n_events)
-    events = (
-        _event(detector, params, source_i, seed, index, config, grid, light)
-        for index, source_i in enumerate(sources)
-    )
-    if not progress:
-        yield from events
-        return
-    from rich.progress import Progress
-
-    with Progress(transient=True) as bar:
-        task = bar.add_task("sampling events", total=int(n_events))
-        for event in events:
-            yield event
-            bar.advance(task)

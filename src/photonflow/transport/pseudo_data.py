@@ -1,0 +1,170 @@
+"""Pseudo-data: Monte Carlo events of calibration sources and particle tracks.
+
+Photon transport (``sampled.py``; a track's photons from ``tracks.py``) followed by the
+sensor response (``response.photoelectrons_to_event``). Event i of a seed uses the key
+``fold_in(PRNGKey(seed), i)``, so the same seed gives the same events in the same order.
+Positions m, times ns, charges p.e.
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import jax
+import numpy as np
+
+from ..errors import ConfigError, format_value
+from ..generator import GeneratorSettings, Track
+from ..geometry.detector import Detector
+from ..io.events import Event, Truth
+from ..params import Params, validate_params
+from ..response import DEFAULT_CONFIG, photoelectrons_to_event
+from ..sources import DiffuserSource, IsotropicSource, LaserSource, check_source
+from .optics import TransportConfig
+from .sampled import (
+    _grid_for,
+    check_config,
+    check_seed,
+    photon_count,
+    sample_photon_bundle,
+    sample_photons,
+)
+from .tracks import check_track, spectral_params, track_light, track_photons, track_truth
+
+_SOURCE_KINDS = {IsotropicSource: "isotropic", LaserSource: "laser", DiffuserSource: "diffuser"}
+
+
+def source_truth(source, seed: int) -> Truth:
+    """The ``Truth`` of a calibration-source event: kind, position (m), direction (unit;
+    NaN for the isotropic source), time (ns) and the seed."""
+    direction = getattr(source, "direction", None)
+    return Truth(
+        source_kind=_SOURCE_KINDS.get(type(source), type(source).__name__),
+        position=np.asarray(source.position, dtype=np.float64),
+        direction=(
+            np.full(3, np.nan) if direction is None else np.asarray(direction, dtype=np.float64)
+        ),
+        time=float(np.asarray(source.time)),
+        seed=int(seed),
+    )
+
+
+
+
+
+def _event(detector, params, source, seed, index, config, grid, light) -> Event:
+    """Event ``index`` of ``seed``: transport and response keys split from
+    ``fold_in(PRNGKey(seed), index)``; a track's photons from ``track_photons``."""
+    transport_key, response_key = jax.random.split(
+        jax.random.fold_in(jax.random.PRNGKey(seed), index)
+    )
+    if isinstance(source, Track):
+        tally = sample_photon_bundle(
+            detector,
+            spectral_params(params, light),
+            track_photons(detector, source, seed, index, light),
+            transport_key,
+            source_time=source.time,
+            config=config,
+            grid=grid,
+        )
+        truth = track_truth(source, seed)
+    else:
+        tally = sample_photons(detector, params, source, transport_key, config=config, grid=grid)
+        truth = source_truth(source, seed)
+    return photoelectrons_to_event(tally, params, response_key, config=config, truth=truth)
+
+
+def _check_any_source(source, detector: Detector) -> None:
+    """``check_track`` for a track, ``check_source`` and ``photon_count`` otherwise."""
+    if isinstance(source, Track):
+        check_track(source, detector)
+    else:
+        check_source(source, detector)
+        photon_count(source)
+
+
+def _prepare(detector, params, sources, seed, config, medium, generator):
+    """Validate everything once; (seed, sensor grid of a walled detector, TrackLight)."""
+    seed = check_seed(seed)
+    check_config(config)
+    validate_params(params, detector.n_sensors)
+    for source in sources:
+        _check_any_source(source, detector)
+    light = track_light(detector, medium, generator)
+    return seed, _grid_for(detector, None), light
+
+
+def sample(
+    detector: Detector,
+    params: Params,
+    source,
+    seed: int,
+    *,
+    config: TransportConfig = DEFAULT_CONFIG,
+    medium: str | None = None,
+    generator: GeneratorSettings | None = None,
+) -> Event:
+    """One Monte Carlo event (pseudo-data) of a calibration source or a particle track.
+
+    A calibration source emits from its point (``sample_photons``); a ``Track`` is
+    generated (``photonflow.generate`` in ``medium``, default the detector preset's,
+    with ``generator`` settings) and its photons transported (``track_photons``,
+    ``sample_photon_bundle``; docs/transport.md, "Particle tracks in sampled mode").
+    Then the sensor response (``photoelectrons_to_event``: transit-time spread,
+    single-p.e. charges, dark noise, readout window from the source or track time,
+    threshold). Positions m, times ns, charges p.e. The same seed gives the same event;
+    ``sample(..., seed)`` equals the first event of ``sample_events(..., seed, n)``.
+
+    Raises:
+        ConfigError: source or track start outside the detector, n_photons < 1 after
+            rounding, NaN or out-of-domain parameters, bad config, medium or seed (one
+            line).
+    """
+    seed, grid, light = _prepare(detector, params, [source], seed, config, medium, generator)
+    return _event(detector, params, source, seed, 0, config, grid, light)
+
+
+def sample_events(
+    detector: Detector,
+    params: Params,
+    source,
+    seed: int,
+    n_events: int,
+    *,
+    config: TransportConfig = DEFAULT_CONFIG,
+    medium: str | None = None,
+    generator: GeneratorSettings | None = None,
+    progress: bool = False,
+):
+    """Yield ``n_events`` independent Monte Carlo events.
+
+    ``source`` is one calibration source or ``Track`` for every event, or a sequence of
+    ``n_events`` of them, event i from the i-th (e.g. ``random_tracks``); ``medium``
+    and ``generator`` as in ``sample``. Event i uses the key ``fold_in(PRNGKey(seed),
+    i)`` (and for a track the generator seeds of ``event_seeds(seed, i)``), so the same
+    seed gives the same events in the same order. ``progress=True`` shows a rich
+    progress bar. Input is validated before the first event (``ConfigError``, one line).
+    """
+    if not isinstance(n_events, numbers.Integral) or isinstance(n_events, bool) or n_events < 0:
+        raise ConfigError(f"n_events = {format_value(n_events)}: must be an integer >= 0")
+    per_event = isinstance(source, list | tuple)
+    distinct = list(source) if per_event else [source]
+    if per_event and len(distinct) != n_events:
+        raise ConfigError(f"{len(distinct)} sources for n_events = {n_events}: need one per event")
+    seed, grid, light = _prepare(detector, params, distinct, seed, config, medium, generator)
+    sources = distinct if per_event else distinct * int(n_events)
+    events = (
+        _event(detector, params, source_i, seed, index, config, grid, light)
+        for index, source_i in enumerate(sources)
+    )
+    if not progress:
+        yield from events
+        return
+    from rich.progress import Progress
+
+    with Progress(transient=True) as bar:
+        task = bar.add_task("sampling events", total=int(n_events))
+        for event in events:
+            yield event
+            bar.advance(task)
