@@ -179,26 +179,7 @@ class _Event:
     def spawn_photons(self, position, direction, energy, time, parent):
         """New photons: tracked above the photon cut, else absorbed on the spot."""
         ids = self.register(np.full(energy.size, Species.GAMMA), energy, parent)
-        tracked = energy >= self.tables.photon_cut
-        if np.any(tracked):
-            self.new_photons.append(
-                Stack(
-                    np.full(int(tracked.sum()), int(Species.GAMMA)),
-                    position[tracked],
-                    direction[tracked],
-                    energy[tracked],
-                    time[tracked],
-                    ids[tracked],
-                    np.zeros(int(tracked.sum())),
-                )
-            )
-        self.point_deposit(
-            position[~tracked],
-            time[~tracked],
-            energy[~tracked],
-            np.full(int((~tracked).sum()), int(Species.GAMMA)),
-            ids[~tracked],
-        )
+        self._continue_photons(position, direction, energy, time, ids)
 
     def finish_charged(self, species, position, energy, time, track):
         """End charged tracks: residual energy deposited, e+ annihilate, muons may decay."""
