@@ -26,6 +26,12 @@ from .shapes import xyz
 #: Extra reach (m) beyond a disc's radius: covers the gap between a disc and the
 #: curved wall behind it along rays up to ~89 degrees from the wall normal.
 BASE_MARGIN = 0.1
+#: Hits nearer than this (m) to a ray's origin are not hits: a ray leaving a surface
+#: (a photon reflected off a sensor's glass, a vertex on a disc) would otherwise meet
+#: that same surface again wherever float32 rounding (~1e-6 m at 20 m from the origin)
+#: puts its start a hair behind it. A convex dome never sees itself, so no real hit is
+#: lost; on SK this removed a 0.8 % excess of sampled over expected charge.
+MIN_HIT_DISTANCE = 1e-4
 
 
 @pytree_dataclass
@@ -164,7 +170,7 @@ def first_sensor_hit_xyz(
         [normals[:, k][safe] for k in range(3)],
         radius[safe],
     )
-    t = jnp.where(valid & (t <= t_max[..., None]), t, jnp.inf)
+    t = jnp.where(valid & (t > MIN_HIT_DISTANCE) & (t <= t_max[..., None]), t, jnp.inf)
     best = jnp.argmin(t, axis=-1)[..., None]
     distance = jnp.take_along_axis(t, best, axis=-1)[..., 0]
     index = jnp.take_along_axis(safe, best, axis=-1)[..., 0]

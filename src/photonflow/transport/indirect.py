@@ -135,10 +135,12 @@ class _Sensors:
 
 
 def _trace(shape: Shape, grid, sensors: _Sensors, origins, directions):
-    """Segment ends: (t_end m, sensor index or -1, hit bool, alive bool)."""
+    """Segment ends: (t_end m, sensor index or -1, hit bool, alive bool). A ray that
+    starts on the wall heading out (light the sensor glass sends below its disc's plane)
+    meets the wall at distance 0, as in the sampled mode."""
     t_wall = shape.ray_exit(origins, directions)
-    alive = jnp.isfinite(t_wall) & (t_wall > 0)
-    t_wall = jnp.where(alive, t_wall, 0.0)
+    alive = jnp.isfinite(t_wall)
+    t_wall = jnp.where(alive, jnp.maximum(t_wall, 0.0), 0.0)
     # standard promotion: grid_candidates mixes int32 cells with int64 dims under x64
     with jax.numpy_dtype_promotion("standard"):
         index, t_sensor = first_sensor_hit(
@@ -377,6 +379,7 @@ def indirect_light_jit(
     time = jnp.broadcast_to(source.time, (n_rays,)).astype(dtype)
     specular = jnp.zeros(n_rays, dtype=bool)
     first_mirror = jnp.zeros(n_rays, dtype=bool)
+    on_disc = jnp.full(n_rays, n, dtype=jnp.int32)  # the disc a ray's origin lies on
     rate_abs, rate_rayleigh, rate_mie, rate_total = interaction_rates(params)
     anisotropy = config.rayleigh_anisotropy
     proposal_g = jnp.asarray(config.mie_proposal_asymmetry, dtype)
@@ -434,7 +437,7 @@ def indirect_light_jit(
         return t_end, index, hit, weight, detected
 
     def step(carry, order):
-        origins, directions, weight, time, specular, first_mirror = carry
+        origins, directions, weight, time, specular, first_mirror, on_disc = carry
         u = jax.random.uniform(
             jax.random.fold_in(vertex_key, order), (_UNIFORMS_PER_VERTEX, n_rays), dtype=dtype
         )
@@ -454,9 +457,11 @@ def indirect_light_jit(
         normal = jnp.where((kind == _GLASS)[:, None], glass_normal, wall_normal)
         if not has_walls:
             weight = jnp.where(kind == _WALL, 0.0, weight)
-        # a glass vertex never lights its own disc: it lies in the disc's plane, but
-        # rounding can tilt it into view, where the exact solid angle is ~2 pi
-        own_disc = jnp.where(kind == _GLASS, index, n)
+        # a vertex on a disc (glass, or the wall right under it after the glass sent the
+        # ray below the disc's plane) never lights that disc: it lies in the disc's
+        # plane, but rounding can tilt it into view, where the exact solid angle is 2 pi
+        still_on_disc = (kind == _WALL) & (s == 0)
+        own_disc = jnp.where(kind == _GLASS, index, jnp.where(still_on_disc, on_disc, n))
         detected = nee(vertex, weight, time, kind, directions, normal, own_disc)
         # continuation
         rayleigh = u[2] < 0.5
@@ -501,12 +506,13 @@ def indirect_light_jit(
         weight = weight * factor
         specular = (kind == _WALL) & mirror
         first_mirror = specular & (order == 1)
-        return (vertex, directions, weight, time, specular, first_mirror), (delta, detected)
+        carry = (vertex, directions, weight, time, specular, first_mirror, own_disc)
+        return carry, (delta, detected)
 
-    carry = (origins, directions, weight, time, specular, first_mirror)
+    carry = (origins, directions, weight, time, specular, first_mirror, on_disc)
     orders = jnp.arange(1, config.n_bounces + 1)
     carry, (delta, detected) = jax.lax.scan(step, carry, orders)
-    t_end, index, hit, weight, last = trace_segment(*carry)
+    t_end, index, hit, weight, last = trace_segment(*carry[:6])
     residual = _residual(params, has_walls, weight, t_end, hit)
     # delta detections of step k + 1 belong to order k (the vertex the segment starts at)
     delta = [jnp.concatenate([d[1:], l[None]], axis=0) for d, l in zip(delta, last, strict=True)]
