@@ -14,14 +14,12 @@ suppression are negligible below 10 GeV in water and are not modelled.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .constants import BREMS_PREFACTOR, ELECTRON_MASS
 from .materials import Material
 from .rejection import sample_by_rejection
-from .screening import coulomb_correction, screening_functions
+from .screening import element_terms
 
 
 def bremsstrahlung_weight(material: Material, total_energy, photon_energy):
@@ -39,15 +37,7 @@ def bremsstrahlung_weight(material: Material, total_energy, photon_energy):
     reduced = 100.0 * ELECTRON_MASS * photon_energy / (total_energy * final_energy)
     weight = np.zeros(np.broadcast(total_energy, photon_energy).shape)
     for element, atoms in zip(material.elements, material.atoms_per_gram(), strict=True):
-        z = element.atomic_number
-        ln_z = math.log(z)
-        phi1, phi_diff, psi1, psi_diff = screening_functions(
-            reduced / z ** (1.0 / 3.0), reduced / z ** (2.0 / 3.0)
-        )
-        main = z * z * (phi1 - 4.0 / 3.0 * ln_z - 4.0 * coulomb_correction(z)) + z * (
-            psi1 - 8.0 / 3.0 * ln_z
-        )
-        extra = z * z * phi_diff + z * psi_diff
+        main, extra = element_terms(element.atomic_number, reduced)
         term = (4.0 / 3.0 - 4.0 / 3.0 * y + y * y) * main + 2.0 / 3.0 * (1.0 - y) * extra
         weight = weight + atoms * np.maximum(term, 0.0)
     return BREMS_PREFACTOR * weight

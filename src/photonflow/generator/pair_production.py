@@ -14,14 +14,12 @@ approximate (pair production there is a few % of the photon cross section in wat
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .constants import BREMS_PREFACTOR, ELECTRON_MASS
 from .materials import Material
 from .rejection import sample_by_rejection
-from .screening import coulomb_correction, screening_functions
+from .screening import element_terms
 
 
 def pair_weight(material: Material, photon_energy, fraction):
@@ -32,15 +30,8 @@ def pair_weight(material: Material, photon_energy, fraction):
     reduced = 100.0 * ELECTRON_MASS / (photon_energy * np.maximum(product, 1e-300))
     weight = np.zeros(np.broadcast(photon_energy, fraction).shape)
     for element, atoms in zip(material.elements, material.atoms_per_gram(), strict=True):
-        z = element.atomic_number
-        ln_z = math.log(z)
-        phi1, phi_diff, psi1, psi_diff = screening_functions(
-            reduced / z ** (1.0 / 3.0), reduced / z ** (2.0 / 3.0)
-        )
-        nuclear = phi1 - 4.0 / 3.0 * ln_z - 4.0 * coulomb_correction(z)
-        electronic = psi1 - 8.0 / 3.0 * ln_z
-        first = z * z * nuclear + z * electronic
-        second = z * z * (nuclear - phi_diff) + z * (electronic - psi_diff)
+        first, difference = element_terms(element.atomic_number, reduced)
+        second = first - difference
         term = (1.0 - 2.0 * product) * first + 2.0 / 3.0 * product * second
         weight = weight + atoms * np.maximum(term, 0.0)
     return BREMS_PREFACTOR * weight

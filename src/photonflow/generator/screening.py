@@ -12,6 +12,8 @@ ln(184.15 Z^-1/3) and ln(1194 Z^-2/3) that define X0.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .constants import FINE_STRUCTURE
@@ -43,3 +45,19 @@ def coulomb_correction(atomic_number: int) -> float:
     return a_sq * (
         1.0 / (1.0 + a_sq) + 0.20206 - 0.0369 * a_sq + 0.0083 * a_sq**2 - 0.002 * a_sq**3
     )
+
+
+def element_terms(atomic_number: int, reduced):
+    """The screened Bethe-Heitler terms of one element shared by bremsstrahlung and pair
+    production, at the reduced momentum transfer ``reduced`` (100 m_e k / (E E') or
+    100 m_e / (k x (1 - x))): (Z^2 (phi1 - 4/3 ln Z - 4 f_c) + Z (psi1 - 8/3 ln Z),
+    Z^2 (phi1 - phi2) + Z (psi1 - psi2))."""
+    z = atomic_number
+    ln_z = math.log(z)
+    phi1, phi_diff, psi1, psi_diff = screening_functions(
+        reduced / z ** (1.0 / 3.0), reduced / z ** (2.0 / 3.0)
+    )
+    first = z * z * (phi1 - 4.0 / 3.0 * ln_z - 4.0 * coulomb_correction(z)) + z * (
+        psi1 - 8.0 / 3.0 * ln_z
+    )
+    return first, z * z * phi_diff + z * psi_diff
