@@ -22,9 +22,9 @@ from ..response import DEFAULT_CONFIG, photoelectrons_to_event
 from ..sources import DiffuserSource, IsotropicSource, LaserSource, check_source
 from .optics import TransportConfig
 from .sampled import (
-    _grid_for,
     check_config,
     check_seed,
+    grid_for,
     photon_count,
     sample_photon_bundle,
     sample_photons,
@@ -92,7 +92,7 @@ def _prepare(detector, params, sources, seed, config, medium, generator):
     for source in sources:
         _check_any_source(source, detector)
     light = track_light(detector, medium, generator)
-    return seed, _grid_for(detector, None), light
+    return seed, grid_for(detector, None), light
 
 
 def sample(
@@ -136,18 +136,23 @@ def sample_events(
     medium: str | None = None,
     generator: GeneratorSettings | None = None,
     progress: bool = False,
+    first_event: int = 0,
 ):
-    """Yield ``n_events`` independent Monte Carlo events.
+    """Yield ``n_events`` independent Monte Carlo events, of indices ``first_event`` to
+    ``first_event + n_events - 1``.
 
     ``source`` is one calibration source or ``Track`` for every event, or a sequence of
-    ``n_events`` of them, event i from the i-th (e.g. ``random_tracks``); ``medium``
-    and ``generator`` as in ``sample``. Event i uses the key ``fold_in(PRNGKey(seed),
-    i)`` (and for a track the generator seeds of ``event_seeds(seed, i)``), so the same
-    seed gives the same events in the same order. ``progress=True`` shows a rich
+    ``n_events`` of them, the k-th for event ``first_event + k`` (e.g. a slice of
+    ``random_tracks``); ``medium`` and ``generator`` as in ``sample``. Event i uses the
+    key ``fold_in(PRNGKey(seed), i)`` (and for a track the generator seeds of
+    ``event_seeds(seed, i)``), so the same seed gives the same events in the same
+    order, and a run split into blocks by ``first_event`` (parallel production,
+    resuming) gives the same events as one run. ``progress=True`` shows a rich
     progress bar. Input is validated before the first event (``ConfigError``, one line).
     """
-    if not isinstance(n_events, numbers.Integral) or isinstance(n_events, bool) or n_events < 0:
-        raise ConfigError(f"n_events = {format_value(n_events)}: must be an integer >= 0")
+    for name, value in (("n_events", n_events), ("first_event", first_event)):
+        if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < 0:
+            raise ConfigError(f"{name} = {format_value(value)}: must be an integer >= 0")
     per_event = isinstance(source, list | tuple)
     distinct = list(source) if per_event else [source]
     if per_event and len(distinct) != n_events:
@@ -156,7 +161,7 @@ def sample_events(
     sources = distinct if per_event else distinct * int(n_events)
     events = (
         _event(detector, params, source_i, seed, index, config, grid, light)
-        for index, source_i in enumerate(sources)
+        for index, source_i in enumerate(sources, start=int(first_event))
     )
     if not progress:
         yield from events

@@ -52,7 +52,7 @@ import numpy as np
 
 from ..errors import ConfigError, format_value
 from ..geometry.detector import Detector
-from ..geometry.sensor_grid import SensorGrid, build_sensor_grid, first_sensor_hit_xyz
+from ..geometry.sensor_grid import SensorGrid, first_sensor_hit_xyz
 from ..geometry.shapes import xyz
 from ..params import Params, validate_params
 from ..response import DEFAULT_CONFIG
@@ -61,6 +61,7 @@ from ..sources import (
     check_source,
 )
 from .emission import sample_directions
+from .indirect import sensor_grid_for
 from .optics import (
     TransportConfig,
     acceptance_at_cos,
@@ -448,12 +449,13 @@ def as_key(key_or_seed):
     raise ConfigError(f"seed = {format_value(key_or_seed)}: must be an integer or a JAX key")
 
 
-def _grid_for(detector: Detector, grid: SensorGrid | None) -> SensorGrid | None:
-    """The sensor grid the loop uses: ``grid`` (built when None) for a walled detector,
-    None for an open medium."""
+def grid_for(detector: Detector, grid: SensorGrid | None) -> SensorGrid | None:
+    """The sensor grid the loop uses: ``grid`` (when None the detector's, built once per
+    detector object by ``sensor_grid_for``) for a walled detector, None for an open
+    medium."""
     if not detector.shape.has_walls:
         return None
-    return build_sensor_grid(detector) if grid is None else grid
+    return sensor_grid_for(detector) if grid is None else grid
 
 
 def _strict_cast(dtype):
@@ -538,7 +540,7 @@ def sample_photons(
     check_source(source, detector)
     n_photons = photon_count(source)
     key = as_key(key)
-    grid = _grid_for(detector, grid)
+    grid = grid_for(detector, grid)
     dtype, sensors, params_c = _device_constants(detector, params)
     source_c = jax.tree.map(_strict_cast(dtype), source)
     batch = batch_size_for(n_photons, config)
@@ -635,7 +637,7 @@ def sample_photon_bundle(
     validate_params(params, detector.n_sensors)
     position, direction, time = check_bundle(photons, detector)
     key = as_key(key)
-    grid = _grid_for(detector, grid)
+    grid = grid_for(detector, grid)
     dtype, sensors, params_c = _device_constants(detector, params)
     n_photons = int(time.shape[0])
     batch = batch_size_for(n_photons, config)
