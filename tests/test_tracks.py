@@ -20,7 +20,9 @@ from photonflow.transport.sampled import sample_photon_bundle, sample_photons
 from photonflow.transport.tracks import (
     PhotonBundle,
     event_seeds,
+    parse_spectrum,
     random_tracks,
+    spectrum_energy,
     track_light,
     track_photons,
 )
@@ -159,6 +161,44 @@ def test_random_tracks_lie_in_the_fiducial_volume_and_are_per_event():
         random_tracks(detector, "e-", 100.0, 4, 1, fiducial_margin=17.0)
 
 
+@pytest.mark.parametrize(("spectrum", "gamma"), [("uniform", 0.0), ("power:1", 1.0),
+                                               ("power:2.7", 2.7), ("power:-1", -1.0)])
+def test_range_energies_follow_the_spectrum_and_the_seed(spectrum, gamma):
+    """dN/dE ~ E^-gamma on [20, 2000] MeV: the drawn energies pass a Kolmogorov-Smirnov
+    test against the analytic cumulative distribution; event i's energy depends only on
+    (seed, i)."""
+    from scipy.stats import kstest
+
+    low, high = 20.0, 2000.0
+    detector = pf.load_detector("TOY_CYLINDER")
+    tracks = random_tracks(detector, "mu-", (low, high), 8, 1500, vertex=(0.0, 0.0, 0.0),
+                           spectrum=spectrum)
+    energies = np.array([track.energy for track in tracks])
+    assert parse_spectrum(spectrum) == gamma
+    assert energies.min() >= low and energies.max() <= high
+
+    def cdf(energy):
+        if gamma == 1:
+            return np.log(energy / low) / np.log(high / low)
+        power = 1.0 - gamma
+        return (energy**power - low**power) / (high**power - low**power)
+
+    assert kstest(energies, cdf).pvalue > 1e-3
+    assert kstest(energies, lambda e: (e - low) / (high - low)).pvalue < 1e-3 or gamma == 0
+    again = random_tracks(detector, "mu-", (low, high), 8, 3, vertex=(0.0, 0.0, 0.0),
+                          spectrum=spectrum)
+    assert [t.energy for t in again] == list(energies[:3])
+
+
+def test_spectrum_quantiles_and_bad_spectra():
+    assert spectrum_energy(0.5, 10.0, 1000.0, 1.0) == pytest.approx(100.0)  # geometric mean
+    assert spectrum_energy(0.5, 10.0, 1000.0, 2.0) == pytest.approx(1 / (0.5 / 10 + 0.5 / 1000))
+    assert spectrum_energy(0.25, 10.0, 1000.0, 0.0) == pytest.approx(257.5)
+    for bad in ("power", "power:", "power:x", "power:nan", "gauss:2", "Uniform"):
+        with pytest.raises(ConfigError, match=f"spectrum = '{bad}'"):
+            parse_spectrum(bad)
+
+
 def test_track_events_round_trip_through_an_event_file(tmp_path):
     detector = pf.load_detector("TOY_CYLINDER")
     params = pf.default_params(detector)
@@ -180,16 +220,17 @@ def invoke(*args):
 def test_simulate_particle_writes_track_events(tmp_path):
     out = tmp_path / "e.h5"
     result = invoke("simulate", "--detector", "TOY_CYLINDER", "--particle", "e-",
-                    "--energy-range", "50,100", "--events", 2, "--fiducial-margin", 0.5,
-                    "--seed", 1, "--out", out)
+                    "--energy-range", "50,100", "--spectrum", "power:1", "--events", 2,
+                    "--fiducial-margin", 0.5, "--seed", 1, "--out", out)
     assert result.exit_code == 0, result.output
     with pf.read_events(out) as stored:
         truths = [event.truth for event in stored]
     assert [t.particle for t in truths] == ["e-", "e-"]
     assert all(50.0 <= t.energy <= 100.0 for t in truths)
     expected = random_tracks(pf.load_detector("TOY_CYLINDER"), "e-", (50.0, 100.0), 1, 2,
-                             fiducial_margin=0.5)
+                             fiducial_margin=0.5, spectrum="power:1")
     np.testing.assert_array_equal(truths[1].position, expected[1].position)
+    assert [t.energy for t in truths] == [track.energy for track in expected]
 
 
 @pytest.mark.parametrize(
@@ -204,6 +245,10 @@ def test_simulate_particle_writes_track_events(tmp_path):
         (["--particle", "mu-", "--energy", "100", "--fiducial-margin", "17"], "fiducial"),
         (["--particle", "mu-", "--energy", "100", "--source", "laser"], "--source"),
         (["--particle", "mu-", "--energy", "100", "--seed", "-1"], "seed = -1"),
+        (["--particle", "mu-", "--energy-range", "100,500", "--spectrum", "power:x"],
+         "--spectrum = 'power:x'"),
+        (["--particle", "mu-", "--energy", "100", "--spectrum", "power:2"],
+         "--spectrum = 'power:2'"),
     ],
 )
 def test_simulate_particle_bad_input_is_one_line_exit_2_and_no_file(tmp_path, options, named):

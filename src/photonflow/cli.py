@@ -8,6 +8,7 @@ nothing behind.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import sys
@@ -170,14 +171,20 @@ def parse_unit_vector(text: str, option: str) -> tuple[float, float, float]:
     return (values[0] / length, values[1] / length, values[2] / length)
 
 
-def parse_energies(energy: float | None, energy_range: str | None):
+def parse_energies(energy: float | None, energy_range: str | None, spectrum: str | None = None):
     """Kinetic energy (MeV) or (low, high) from ``--energy`` / ``--energy-range``;
-    exactly one must be given, within (0, MAXIMUM_ENERGY] MeV."""
+    exactly one must be given, within (0, MAXIMUM_ENERGY] MeV; ``--spectrum`` only
+    with a range (checked by ``parse_spectrum``)."""
     from .errors import ConfigError
     from .generator.track import MAXIMUM_ENERGY
+    from .transport.tracks import parse_spectrum
 
     if (energy is None) == (energy_range is None):
         raise ConfigError("--energy / --energy-range: give exactly one for a --particle")
+    if spectrum is not None:
+        parse_spectrum(spectrum, "--spectrum")
+        if energy_range is None:
+            raise ConfigError(f"--spectrum = {spectrum!r}: only with --energy-range")
     if energy is not None:
         if not 0 < energy <= MAXIMUM_ENERGY:
             raise ConfigError(f"--energy = {energy:g}: must be in (0, {MAXIMUM_ENERGY:g}] MeV")
@@ -196,9 +203,11 @@ def parse_energies(energy: float | None, energy_range: str | None):
 
 
 def track_sources(detector, particle, energy, energy_range, vertex, direction, margin, seed,
-                  events):
+                  events, spectrum=None):
     """The per-event ``Track``s of ``simulate --particle`` (``random_tracks``), with
-    one-line errors naming the option."""
+    one-line errors naming the option, and the settings that make them (a JSON-able
+    dict: particle, energy MeV or [low, high], spectrum, vertex, direction,
+    fiducial_margin m)."""
     from .errors import ConfigError
     from .generator.particles import PARTICLES
     from .transport.tracks import random_tracks
@@ -214,10 +223,62 @@ def track_sources(detector, particle, energy, energy_range, vertex, direction, m
         direction = parse_unit_vector(direction, "--direction")
     if not (math.isfinite(margin) and margin >= 0):
         raise ConfigError(f"--fiducial-margin = {margin:g}: must be >= 0 m")
-    return random_tracks(
-        detector, particle, parse_energies(energy, energy_range), seed, events,
-        vertex=vertex, direction=direction, fiducial_margin=margin,
+    energies = parse_energies(energy, energy_range, spectrum)
+    settings = {
+        "particle": particle, "energy": energies, "spectrum": spectrum or "uniform",
+        "vertex": vertex, "direction": direction, "fiducial_margin": margin,
+    }
+    tracks = random_tracks(
+        detector, particle, energies, seed, events, vertex=vertex, direction=direction,
+        fiducial_margin=margin, spectrum=spectrum or "uniform",
     )
+    return tracks, settings
+
+
+def source_settings(source) -> dict:
+    """A calibration source as a JSON-able dict: its kind and every field (m, ns, rad,
+    photons) as numbers or lists."""
+    import dataclasses
+
+    import numpy as np
+
+    fields = {f.name: np.asarray(getattr(source, f.name)).tolist()
+              for f in dataclasses.fields(source)}
+    return {"source": type(source).__name__, **fields}
+
+
+def interrupted(writer, events: int) -> typer.Exit:
+    """Report an interrupted ``simulate`` in one line; return the exit to raise (130)."""
+    from .io.writer import checkpoint_path
+
+    done = writer.n_run_events
+    kept = checkpoint_path(writer.path)
+    advice = (
+        f"{kept.name} keeps them: run the same command with --resume to finish"
+        if done and kept.exists() else "nothing kept"
+    )
+    sys.stderr.write(f"interrupted after {done} of {events} events; {advice}\n")
+    return typer.Exit(code=130)
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt():
+    """Within the block, SIGTERM (``kill``) raises ``KeyboardInterrupt`` like Ctrl-C,
+    so that an interrupted write keeps its checkpoint."""
+    import signal
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    try:
+        previous = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread: leave SIGTERM alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 @command
@@ -232,7 +293,10 @@ def simulate(
     energy: Annotated[float | None, typer.Option(
         help="Track kinetic energy, MeV.")] = None,
     energy_range: Annotated[str | None, typer.Option(
-        "--energy-range", help="Track kinetic energy uniform in LOW,HIGH MeV.")] = None,
+        "--energy-range", help="Track kinetic energy range LOW,HIGH MeV.")] = None,
+    spectrum: Annotated[str | None, typer.Option(
+        help="Energy spectrum over --energy-range: uniform (default) or power:GAMMA"
+             " (dN/dE ~ E^-GAMMA; 1 = log-uniform).")] = None,
     vertex: Annotated[str, typer.Option(
         help="Track start: uniform-fiducial or x,y,z in m.")] = "uniform-fiducial",
     fiducial_margin: Annotated[float, typer.Option(
@@ -253,16 +317,28 @@ def simulate(
         help="Scatterings/reflections followed per photon.")] = 2,
     mode: Annotated[str, typer.Option(
         help="create (refuse to overwrite), recreate or append.")] = "create",
+    workers: Annotated[int | None, typer.Option(
+        help="Run on a local Dask cluster of this many worker processes.")] = None,
+    scheduler: Annotated[str | None, typer.Option(
+        help="Run on the existing Dask cluster whose scheduler is at this address"
+             " (e.g. tcp://host:8786).")] = None,
+    resume: Annotated[bool, typer.Option(
+        "--resume", help="Continue the interrupted run of the same command (its"
+                         " .OUT.partial file) at its first missing event.")] = False,
 ) -> None:
     """Simulate calibration-source or particle-track events photon by photon and write
-    them to a file (tracks: vertex, direction and energy drawn per event from the seed)."""
+    them to a file (tracks: vertex, direction and energy drawn per event from the seed).
+
+    The same seed gives the same file, serially or in parallel (--workers,
+    --scheduler). An interrupted run (Ctrl-C, kill) keeps its events in .OUT.partial
+    beside OUT; the same command with --resume finishes it."""
     from .config import load_setup
     from .errors import ConfigError
-    from .io import write_events
+    from .io import EventWriter
     from .params import validate_params
     from .sources import check_source, make_source
     from .transport.optics import TransportConfig
-    from .transport.pseudo_data import sample_events
+    from .transport.production import produce_events
 
     if events < 1:
         raise ConfigError(f"--events = {events}: must be >= 1")
@@ -270,11 +346,15 @@ def simulate(
         raise ConfigError(f"--bounces = {bounces}: must be >= 0")
     if particle is not None and source is not None:
         raise ConfigError(f"--source = {source!r}: not with --particle (choose one)")
+    if workers is not None and scheduler is not None:
+        raise ConfigError(f"--scheduler = {scheduler!r}: not with --workers (choose one)")
+    if workers is not None and workers < 1:
+        raise ConfigError(f"--workers = {workers}: must be >= 1")
     setup = load_setup(detector)
     if particle is not None:
-        light = track_sources(
+        light, settings = track_sources(
             setup.detector, particle, energy, energy_range, vertex, direction or "isotropic",
-            fiducial_margin, seed, events,
+            fiducial_margin, seed, events, spectrum,
         )
     else:
         light = make_source(
@@ -283,14 +363,27 @@ def simulate(
             opening_angle=opening_angle, anisotropy=anisotropy, pulse_width=pulse_width,
         )
         check_source(light, setup.detector)
+        settings = source_settings(light)
     validate_params(setup.params, setup.detector.n_sensors)
-    stream = sample_events(
-        setup.detector, setup.params, light, seed, events,
-        config=TransportConfig(n_bounces=bounces), medium=setup.medium, progress=True,
-    )
-    path = write_events(out, stream, setup.detector, setup.params, mode=mode)
+    settings.update(seed=seed, n_events=events, bounces=bounces, medium=setup.medium,
+                    photonflow_version=__version__)
+    writer = EventWriter(out, setup.detector, setup.params, mode=mode, chunk_events=100,
+                         run=settings, resume=resume)
+    with terminate_as_interrupt():
+        try:
+            with writer:
+                done = writer.n_run_events
+                writer.extend(produce_events(
+                    setup.detector, setup.params,
+                    light[done:] if particle is not None else light, seed, events - done,
+                    first_event=done, config=TransportConfig(n_bounces=bounces),
+                    medium=setup.medium, workers=workers, scheduler=scheduler, progress=True,
+                ))
+        except KeyboardInterrupt:
+            raise interrupted(writer, events) from None
     console().print(
-        f"wrote {events} events to {path} ({setup.detector.describe()})",
+        f"wrote {events} events to {writer.path} ({setup.detector.describe()})"
+        + (f", resumed at event {done}" if resume else ""),
         highlight=False, soft_wrap=True,
     )
 

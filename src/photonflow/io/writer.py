@@ -5,16 +5,22 @@ that replaces the target with ``os.replace`` only when the writer closes without
 error. An exception (KeyboardInterrupt included) removes the temporary file; a
 process killed outright leaves the target as it was (absent, or the old file) and
 at worst a stale ``.partial`` file beside it.
+
+A resumable write (``run=`` settings given) uses the fixed name ``.{name}.partial``
+instead, checkpoints it as it goes and keeps it when interrupted, so that the same
+run can continue from it with ``resume=True`` (docs/file-format.md, "Resuming").
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import os
 import shutil
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
+from time import monotonic
 
 import h5py
 import numpy as np
@@ -26,6 +32,7 @@ from .events import Event, Truth, hit_arrays_problem, unknown_vector
 from .hdf5 import (
     HIT_FIELDS,
     TRUTH_FIELDS,
+    check_layout,
     create_layout,
     detector_difference,
     now_iso,
@@ -37,6 +44,35 @@ MODES = ("create", "recreate", "append")
 
 #: Truth columns stored for an event without truth (all "unknown").
 _UNKNOWN_TRUTH = ("", "", unknown_vector(), unknown_vector(), math.nan, math.nan, -1)
+
+
+#: Seconds between checkpoints of a resumable write (also one every ``chunk_events``).
+CHECKPOINT_SECONDS = 20.0
+
+
+def checkpoint_path(target: str | os.PathLike) -> Path:
+    """The partial file ``.{name}.partial`` beside ``target`` that a resumable write
+    (``EventWriter(..., run=...)``) fills and keeps when interrupted."""
+    target = Path(target).expanduser()
+    return target.parent / f".{target.name}.partial"
+
+
+def _settings_json(run: Mapping) -> str:
+    """``run`` as canonical JSON (sorted keys); a one-line error if it is not JSON-able."""
+    try:
+        return json.dumps(dict(run), sort_keys=True, allow_nan=True)
+    except (TypeError, ValueError) as error:
+        raise EventFileError(f"run = {run!r}: not JSON-serialisable ({error})") from None
+
+
+def run_difference(stored: str, run: Mapping) -> str | None:
+    """The first setting (in key order) in which the JSON ``stored`` run settings differ
+    from ``run``, as "KEY = stored, not given"; None when they are equal."""
+    old, new = json.loads(stored), json.loads(_settings_json(run))
+    for key in sorted(set(old) | set(new)):
+        if old.get(key) != new.get(key):
+            return f"{key} = {json.dumps(old.get(key))}, not {json.dumps(new.get(key))}"
+    return None
 
 
 def _temporary_path(target: Path) -> Path:
@@ -80,13 +116,23 @@ class EventWriter:
         mode: "create" (refuse an existing file), "recreate" (overwrite) or "append"
             (add events to an existing file with the same detector and params).
         chunk_events: events buffered in memory between writes (memory bound).
+        run: the settings of the run that makes the events (JSON-able mapping, e.g.
+            seed, source, number of events), or None. Given, the write is resumable:
+            the settings are stored (root attributes ``run``, ``run_first_event``), the
+            partial file ``checkpoint_path(path)`` is checkpointed every
+            ``chunk_events`` events or ``CHECKPOINT_SECONDS`` and kept when the
+            ``with`` block ends with an exception after this run wrote an event.
+        resume: continue the kept partial file of an interrupted run with the same
+            ``mode``, detector, params and ``run`` settings (``n_run_events`` says how
+            many of the run's events it holds; the caller adds the rest).
 
     The target only changes when the ``with`` block ends without an exception.
 
     Raises:
         EventFileError: one-line messages for a bad mode, an existing (create) or
             missing (append) target, a detector/params mismatch on append, or an
-            invalid event.
+            invalid event; a partial file in the way (not resuming), none to resume,
+            or one whose detector, params or run settings differ from the given ones.
     """
 
     def __init__(
@@ -97,6 +143,8 @@ class EventWriter:
         *,
         mode: str = "create",
         chunk_events: int = 10000,
+        run: Mapping | None = None,
+        resume: bool = False,
     ) -> None:
         self.path = Path(path).expanduser()
         if mode not in MODES:
@@ -120,21 +168,34 @@ class EventWriter:
                     f"{self.path}: params.{spec.name} has shape {shape}, expected"
                     f" ({detector.n_sensors},) for detector {detector.name!r}"
                 )
+        if resume and run is None:
+            raise EventFileError(f"{self.path}: resume needs the run settings (run=...)")
         self.detector = detector
         self.params = params
         self.mode = mode
         self.chunk_events = int(chunk_events)
+        self.run = None if run is None else _settings_json(run)
+        self.resume = bool(resume)
         self._tmp: Path | None = None
         self._h5: h5py.File | None = None
         self._buffer: list[tuple] = []
         self._n_events = 0
         self._n_hits = 0
+        self._run_first_event = 0
+        self._checkpointed = monotonic()
 
     # ---- lifecycle -------------------------------------------------------------
     @property
     def n_events(self) -> int:
         """Events in the file so far (written and buffered, including pre-existing ones)."""
         return self._n_events + len(self._buffer)
+
+    @property
+    def n_run_events(self) -> int:
+        """Events of this run in the file so far (for a resumed run, those written before
+        the interruption included); ``n_events`` less the events already in an appended
+        file."""
+        return self.n_events - self._run_first_event
 
     def __enter__(self) -> EventWriter:
         if self._h5 is not None:
@@ -149,25 +210,85 @@ class EventWriter:
                 f"{target}: file exists; use mode=\"recreate\" to overwrite it"
                 " or mode=\"append\" to add events"
             )
-        if self.mode == "append":
+        if self.mode == "append" and not self.resume:
             self._check_append_target()
-        self._tmp = _temporary_path(target)
+        self._tmp = _temporary_path(target) if self.run is None else self._checkpoint_file()
         try:
-            if self.mode == "append":
+            if self.resume:
+                with _open_partial(self._tmp, target, "r") as h5:
+                    self._check_resumable(h5)
+                self._h5 = _reopen_checkpoint(self._tmp, target)
+            elif self.mode == "append":
                 shutil.copyfile(target, self._tmp)
                 self._h5 = h5py.File(self._tmp, "r+")
                 self._h5.attrs["modified"] = now_iso()
-                self._n_events = self._h5["events/offsets"].shape[0] - 1
-                self._n_hits = int(self._h5["events/offsets"][self._n_events])
+                for name in ("run", "run_first_event"):  # no longer one run's file
+                    with contextlib.suppress(KeyError):
+                        del self._h5.attrs[name]
             else:
                 self._h5 = h5py.File(self._tmp, "w")
                 create_layout(self._h5, self.detector, self.params)
+            self._n_events = self._h5["events/offsets"].shape[0] - 1
+            self._n_hits = int(self._h5["events/offsets"][self._n_events])
+            if self.run is not None and not self.resume:
+                self._h5.attrs["run"] = self.run
+                self._h5.attrs["run_first_event"] = np.int64(self._n_events)
+                self._h5.flush()
+            self._run_first_event = int(self._h5.attrs.get("run_first_event", 0))
         except BaseException as error:
-            self._discard()
+            if self.resume:
+                self._close_keeping()
+            else:
+                self._discard()
             if isinstance(error, OSError):
                 raise EventFileError(f"{target}: cannot write ({error})") from None
             raise
         return self
+
+    def _checkpoint_file(self) -> Path:
+        """The partial file of a resumable write: the kept one when resuming, else a new
+        one (refused when an interrupted run's file is in the way, unless recreating)."""
+        partial = checkpoint_path(self.path)
+        if self.resume:
+            if not partial.exists():
+                raise EventFileError(
+                    f"{self.path}: no interrupted run to resume ({partial.name} not found)"
+                )
+            return partial
+        if self.mode == "recreate":
+            with contextlib.suppress(FileNotFoundError):
+                partial.unlink()
+        try:
+            os.close(os.open(partial, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+        except FileExistsError:
+            raise EventFileError(
+                f"{self.path}: an interrupted run left {partial.name}; resume it (--resume)"
+                " or delete it"
+            ) from None
+        except OSError as error:
+            raise EventFileError(
+                f"{self.path}: cannot create {partial.name} ({error.strerror or error})"
+            ) from None
+        return partial
+
+    def _check_resumable(self, h5: h5py.File) -> None:
+        """Refuse to resume a partial file of another detector, params or run."""
+        target = self.path
+        try:
+            differences = (
+                ("detectors", detector_difference(h5["detector"], self.detector)),
+                ("parameters", params_difference(h5["params"], self.params)),
+                ("settings", run_difference(_text_attr(h5, "run"), json.loads(self.run))),
+            )
+        except (KeyError, OSError, ValueError) as error:
+            raise _damaged(self._tmp, target, error) from None
+        for what, difference in differences:
+            if difference is not None:
+                raise EventFileError(
+                    f"{target}: cannot resume, the {what} differ from the interrupted"
+                    f" run's ({difference}); resume with the same settings or delete"
+                    f" {checkpoint_path(target).name}"
+                )
 
     def _check_append_target(self) -> None:
         target = self.path
@@ -189,7 +310,10 @@ class EventWriter:
 
     def __exit__(self, exc_type, exc, traceback) -> None:
         if exc_type is not None:
-            self._discard()
+            if self.run is not None and (self.resume or self.n_run_events > 0):
+                self._close_keeping()
+            else:
+                self._discard()
             return
         try:
             self._flush()
@@ -203,10 +327,27 @@ class EventWriter:
             os.replace(self._tmp, self.path)
             self._tmp = None
         except BaseException as error:
-            self._discard()
+            if self.run is not None:
+                self._close_keeping()
+            else:
+                self._discard()
             if isinstance(error, OSError):
                 raise EventFileError(f"{self.path}: cannot write ({error})") from None
             raise
+
+    def _close_keeping(self) -> None:
+        """Checkpoint what can be and close, keeping the partial file of a resumable
+        write (its ``/events`` attribute ``n_events`` counts the events it holds)."""
+        if self._h5 is not None:
+            with contextlib.suppress(Exception):
+                self._flush()
+            with contextlib.suppress(Exception):
+                self._h5.close()
+            self._h5 = None
+            with contextlib.suppress(OSError):
+                _fsync(self._tmp)
+        self._buffer = []
+        self._tmp = None
 
     def _discard(self) -> None:
         """Close and delete the temporary file; the target stays untouched."""
@@ -257,7 +398,10 @@ class EventWriter:
         if problem is not None:
             raise EventFileError(f"{self.path}: events[{index}]: {problem}")
         self._buffer.append((ids, charge, time, *record))
-        if len(self._buffer) >= self.chunk_events:
+        due = self.run is not None and (
+            monotonic() - self._checkpointed >= CHECKPOINT_SECONDS
+        )
+        if len(self._buffer) >= self.chunk_events or due:
             self._flush()
 
     def extend(self, events: Iterable[Event]) -> None:
@@ -310,6 +454,64 @@ class EventWriter:
         offsets[n0 + 1 : n1 + 1] = h0 + np.cumsum(counts)
         events.attrs["n_events"] = np.int64(n1)
         self._n_events, self._n_hits = n1, h1
+        if self.run is not None:
+            self._h5.flush()
+            self._checkpointed = monotonic()
+
+
+def _text_attr(h5: h5py.File, name: str) -> str:
+    """A root string attribute ("{}" when absent), decoded from bytes if need be."""
+    value = h5.attrs.get(name, "{}")
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+def _damaged(partial: Path, target: Path, reason) -> EventFileError:
+    """The one-line error for a partial file that cannot be resumed."""
+    return EventFileError(
+        f"{target}: cannot resume, {partial.name} is damaged ({reason}); delete it and run"
+        " again without resuming"
+    )
+
+
+def _open_partial(partial: Path, target: Path, mode: str) -> h5py.File:
+    """``h5py.File(partial, mode)`` with a one-line error naming the damage."""
+    try:
+        return h5py.File(partial, mode)
+    except OSError as error:
+        raise _damaged(partial, target, error) from None
+
+
+def _reopen_checkpoint(partial: Path, target: Path) -> h5py.File:
+    """Open an interrupted run's partial file read/write, cut every ``/events`` dataset
+    back to the last checkpoint (``/events`` attribute ``n_events``) and check it.
+
+    Raises:
+        EventFileError: the file is not a readable partial event file (one line).
+    """
+    h5 = _open_partial(partial, target, "r+")
+    try:
+        events = h5["events"]
+        n_events = int(events.attrs["n_events"])
+        offsets = events["offsets"]
+        if offsets.shape[0] < n_events + 1:
+            raise _damaged(partial, target, f"{offsets.shape[0]} offsets < n_events + 1")
+        n_hits = int(offsets[n_events])
+        datasets = [(offsets, n_events + 1)]
+        datasets += [(events["truth"][name], n_events) for name in TRUTH_FIELDS]
+        datasets += [(events["hits"][name], n_hits) for name in HIT_FIELDS]
+        for dataset, length in datasets:
+            if dataset.shape[0] < length:
+                raise _damaged(partial, target, f"{dataset.name} is too short")
+            dataset.resize((length, *dataset.shape[1:]))
+        check_layout(h5, partial)
+    except EventFileError:
+        h5.close()
+        raise
+    except Exception as error:
+        h5.close()
+        raise _damaged(partial, target, error) from None
+    h5.attrs["modified"] = now_iso()
+    return h5
 
 
 def _iterate(events, path: Path):

@@ -151,6 +151,41 @@ def isotropic_direction(rng: np.random.Generator) -> np.ndarray:
     return np.array([sin_theta * math.cos(phi), sin_theta * math.sin(phi), cos_theta])
 
 
+def parse_spectrum(spectrum: str, option: str = "spectrum") -> float:
+    """The index GAMMA of an energy spectrum dN/dE proportional to E^-GAMMA (E in MeV):
+    "uniform" is GAMMA = 0, "power:GAMMA" any finite GAMMA (1: log-uniform).
+
+    Raises:
+        ConfigError: anything else (one line naming ``option`` and the value).
+    """
+    if spectrum == "uniform":
+        return 0.0
+    kind, _, index = str(spectrum).partition(":")
+    try:
+        gamma = float(index) if kind == "power" else math.nan
+    except ValueError:
+        gamma = math.nan
+    if not math.isfinite(gamma):
+        raise ConfigError(
+            f"{option} = {spectrum!r}: expected uniform or power:GAMMA (dN/dE ~ E^-GAMMA,"
+            " GAMMA a finite number)"
+        )
+    return gamma
+
+
+def spectrum_energy(quantile: float, low: float, high: float, gamma: float) -> float:
+    """The energy (MeV) at ``quantile`` in [0, 1) of dN/dE ~ E^-gamma on [low, high] MeV
+    (inverse cumulative distribution; gamma = 0 uniform, 1 log-uniform)."""
+    if gamma == 0:
+        return low + (high - low) * quantile
+    if gamma == 1:
+        energy = low * (high / low) ** quantile
+    else:
+        power = 1.0 - gamma
+        energy = (low**power + quantile * (high**power - low**power)) ** (1.0 / power)
+    return min(max(energy, low), high)
+
+
 def random_tracks(
     detector: Detector,
     particle: str,
@@ -161,6 +196,7 @@ def random_tracks(
     vertex="uniform-fiducial",
     direction="isotropic",
     fiducial_margin: float = 2.0,
+    spectrum: str = "uniform",
 ) -> list[Track]:
     """``n_events`` tracks for ``sample_events(..., seed, n_events)``; track i draws its
     vertex, direction and energy from the kinematics seed of ``event_seeds(seed, i)``.
@@ -168,18 +204,21 @@ def random_tracks(
     Args:
         detector: where the vertices lie (m).
         particle: "mu-", "mu+", "e-", "e+" or "gamma".
-        energy: kinetic energy, MeV, or (low, high) for a uniform spectrum.
+        energy: kinetic energy, MeV, or (low, high) MeV drawn from ``spectrum``.
         seed: the events' seed.
         n_events: number of tracks.
         vertex: "uniform-fiducial" (uniform in the detector at least ``fiducial_margin``
             m from every wall) or a fixed point (3,) m.
         direction: "isotropic" or a fixed unit vector (3,).
         fiducial_margin: m, >= 0 and less than the detector's largest wall distance.
+        spectrum: of an energy range: "uniform" or "power:GAMMA" (dN/dE ~ E^-GAMMA;
+            ``parse_spectrum``), drawn by ``spectrum_energy`` from one uniform number.
 
     Raises:
-        ConfigError: bad energy range, margin or fixed vector (one line).
+        ConfigError: bad energy range, spectrum, margin or fixed vector (one line).
     """
     seed = check_seed(seed)
+    gamma = parse_spectrum(spectrum)
     low, high = (energy, energy) if isinstance(energy, numbers.Real) else energy
     if not 0 < low <= high:
         raise ConfigError(f"energy = {format_value(energy)}: must be > 0 MeV, low <= high")
@@ -195,6 +234,6 @@ def random_tracks(
         fiducial = vertex == "uniform-fiducial"
         start = uniform_vertex(rng, detector, fiducial_margin) if fiducial else vertex
         heading = isotropic_direction(rng) if direction == "isotropic" else direction
-        kinetic = low if low == high else rng.uniform(low, high)
+        kinetic = low if low == high else spectrum_energy(rng.random(), low, high, gamma)
         tracks.append(check_track(Track(particle, start, heading, kinetic), detector))
     return tracks
