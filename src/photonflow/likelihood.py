@@ -248,8 +248,9 @@ def first_hit_logpdf(
     return log_lambda - big_lambda - log1mexp(prediction.charge + mu_dark)
 
 
-def _dense_hits(event: Event, n: int, dtype) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Scatter sparse hits to (N,) hit mask, summed charge and earliest time."""
+def hit_arrays(event: Event, n: int, dtype) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Scatter sparse hits to (N,) arrays: hit mask, summed charge (p.e.) and earliest
+    time (ns; 0 where not hit)."""
     ids = jnp.asarray(event.sensor_ids, dtype=jnp.int32)
     charge = jnp.asarray(event.charge).astype(dtype)
     time = jnp.asarray(event.time).astype(dtype)
@@ -301,14 +302,47 @@ def sensor_nll(
         1/p.e. and, with ``use_time``, 1/ns for hit sensors). Differentiable in every
         field of ``prediction`` and ``params``; works under ``jit``.
     """
+    n = prediction.charge.shape[0]
+    hit, q, t = hit_arrays(event, n, prediction.charge.dtype)
+    dark_rate, spe_width, window = _response(prediction, params, window)
+    return dense_sensor_nll(
+        prediction, hit, q, t, dark_rate, spe_width, window,
+        charge_threshold=charge_threshold, use_time=use_time,
+    )
+
+
+def dense_sensor_nll(
+    prediction: Prediction,
+    hit: jax.Array,
+    q: jax.Array,
+    t: jax.Array,
+    dark_rate: jax.Array,
+    spe_width: jax.Array,
+    window: tuple[float, float],
+    *,
+    charge_threshold: float | None = None,
+    use_time: bool = True,
+) -> jax.Array:
+    """``sensor_nll`` on dense per-sensor arrays (one event; vmap it over events).
+
+    Args:
+        prediction: expected signal p.e. per sensor and arrival-time mixture (ns).
+        hit: (N,) bool, sensor recorded a hit; q: (N,) its summed charge, p.e.; t: (N,)
+            its first-hit time, ns (any finite value where not hit).
+        dark_rate: dark-noise rate per sensor, Hz; spe_width: single-p.e. width, p.e.
+        window: readout window (t0, t1), ns (static).
+        charge_threshold, use_time: as in ``sensor_nll``.
+
+    Returns:
+        (N,) ``-log P`` per sensor.
+    """
     mu_s = prediction.charge
     n = mu_s.shape[0]
     dtype = mu_s.dtype
-    hit, q, t = _dense_hits(event, n, dtype)
-    dark_rate, spe_width, window = _response(prediction, params, window)
     mu_dark = jnp.asarray(_dark_mean(dark_rate, window), dtype=dtype)
     mu = mu_s + mu_dark
     width = jnp.asarray(spe_width, dtype=dtype)
+    q = jnp.asarray(q, dtype=dtype)
 
     log_hit = log1mexp(mu)
     log_hit = log_hit + charge_logpdf(q, mu, width)

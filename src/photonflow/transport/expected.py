@@ -60,28 +60,54 @@ def expected(
         and ``residual_weight`` (photons still alive at the bounce cap). Differentiable
         in every field of ``params`` and ``source``; new values never recompile.
     """
+    config = TransportConfig() if config is None else config
+    if key is None:
+        key = jax.random.key(0)
     dtype = jnp.result_type(params.absorption_length)
+    predict = expected_function(detector, dtype, config=config, grid=grid)
+    return predict(params, source, key)
+
+
+def expected_function(
+    detector: Detector,
+    dtype=None,
+    *,
+    config: TransportConfig | None = None,
+    grid: SensorGrid | None = None,
+):
+    """``expected`` with the detector prepared once: a function
+    ``predict(params, source, key) -> Prediction`` that may be traced, jitted, vmapped
+    or differentiated as a whole (``expected`` itself builds grids from the concrete
+    detector and so is called outside ``jit``).
+
+    Args:
+        detector: sensors (positions m, normals, radii m) and boundary.
+        dtype: float dtype of the computation (default JAX's default float); ``params``
+            and ``source`` are cast to it.
+        config: static transport settings (default ``TransportConfig()``).
+        grid: sensor lookup grid (default: built once per detector object).
+    """
+    config = TransportConfig() if config is None else config
+    dtype = jnp.zeros(()).dtype if dtype is None else dtype
 
     def cast(leaf):
         return jnp.asarray(leaf, dtype=dtype) + jnp.zeros((), dtype)  # drops weak typing
 
-    config = TransportConfig() if config is None else config
-    if key is None:
-        key = jax.random.key(0)
     if grid is None and detector.shape.has_walls:
         grid = sensor_grid_for(detector)
-    return expected_jit(
-        cast(detector.sensor_positions),
-        cast(detector.sensor_normals),
-        cast(detector.sensor_radius),
-        grid,
-        params,
-        jax.tree.map(cast, source),
-        key,
-        near_grid_for(detector),
-        shape=detector.shape,
-        config=config,
+    positions, normals, radius = (
+        cast(x) for x in (detector.sensor_positions, detector.sensor_normals,
+                          detector.sensor_radius)
     )
+    near_grid = near_grid_for(detector)
+
+    def predict(params: Params, source, key) -> Prediction:
+        return expected_jit(
+            positions, normals, radius, grid, jax.tree.map(cast, params),
+            jax.tree.map(cast, source), key, near_grid, shape=detector.shape, config=config,
+        )
+
+    return predict
 
 
 @functools.partial(jax.jit, static_argnames=("shape", "config"))

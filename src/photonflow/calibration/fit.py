@@ -1,0 +1,227 @@
+"""``calibrate``: fit detector parameters to calibration runs by gradient-based steps on
+the expected mode's exact likelihood (``docs/calibration.md``)."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Iterable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import ConfigError
+from ..geometry.detector import Detector
+from ..params import PARAM_SPECS, Params, from_unconstrained, validate_params
+from ..sources import source_kind
+from ..transport.optics import TransportConfig
+from .layout import FreeLayout, free_layout
+from .methods import make_method
+from .objective import CalibrationProblem
+from .result import CalibrationResult
+from .runs import prepare_runs
+from .structured import StructuredMatrix
+
+#: A free value whose 1-sigma uncertainty exceeds this, in unconstrained units (log for
+#: lengths and rates: a factor e^3 = 20; logit for probabilities; ns for time offsets),
+#: is reported as not constrained by the data.
+UNCONSTRAINED_SIGMA = 3.0
+
+
+def unconstrained_labels(layout: FreeLayout, curvature: StructuredMatrix) -> list[str]:
+    """Free entries that the curvature leaves (nearly) flat: no information at all, or
+    a 1-sigma uncertainty above ``UNCONSTRAINED_SIGMA`` (a flat direction, e.g. a global
+    efficiency degenerate with the per-sensor ones). Empty when all are constrained."""
+    labels = layout.dense_names()
+    flat = [labels[i] for i in np.flatnonzero(~(np.diag(curvature.a) > 0))]
+    for column, name in enumerate(layout.sensor_fields):
+        dead = np.flatnonzero(~(curvature.b[:, column, column] > 0))
+        if dead.size:
+            flat.append(f"{name} of {dead.size} sensors (first: {int(dead[0])})")
+    if flat:
+        return flat
+    try:
+        dense_var, sensor_var = curvature.covariance()
+    except np.linalg.LinAlgError:
+        return labels + list(layout.sensor_fields)
+    dense_var = np.diag(dense_var)
+    wide = ~(dense_var > 0) | (np.sqrt(np.abs(dense_var)) > UNCONSTRAINED_SIGMA)
+    flat = [labels[i] for i in np.flatnonzero(wide)]
+    for column, name in enumerate(layout.sensor_fields):
+        var = sensor_var[:, column]
+        bad = np.flatnonzero(~(var > 0) | (np.sqrt(np.abs(var)) > UNCONSTRAINED_SIGMA))
+        if bad.size:
+            flat.append(f"{name} of {bad.size} sensors (first: {int(bad[0])})")
+    return flat
+
+
+def _physical_errors(problem: CalibrationProblem, theta: dict, curvature) -> tuple:
+    """(errors ``Params`` in physical units, dense correlation matrix)."""
+    layout = problem.layout
+    dense_cov, sensor_var = curvature.covariance()
+    sigma_dense = np.sqrt(np.abs(np.diag(dense_cov)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        correlation = dense_cov / np.outer(sigma_dense, sigma_dense)
+    sigma_theta = layout.join(sigma_dense, np.sqrt(np.abs(sensor_var)))
+    unconstrained = dataclasses.replace(problem.base, **theta)
+    tangent = jax.tree.map(jnp.ones_like, unconstrained)
+    _, slope = jax.jvp(from_unconstrained, (unconstrained,), (tangent,))
+    errors = {}
+    for spec in PARAM_SPECS:
+        value = np.asarray(getattr(slope, spec.name), np.float64)
+        if spec.name in sigma_theta:
+            errors[spec.name] = np.abs(value) * np.asarray(sigma_theta[spec.name], np.float64)
+        else:
+            errors[spec.name] = np.zeros_like(value)
+    return Params.from_dict(errors), correlation
+
+
+def _dense_values(problem: CalibrationProblem, params: Params) -> dict[str, float]:
+    """Label -> physical value of every dense free entry."""
+    values = {}
+    for name in problem.layout.dense_fields:
+        value = np.asarray(getattr(params, name), np.float64)
+        if value.ndim:
+            values.update({f"{name}[{k}]": float(v) for k, v in enumerate(value)})
+        else:
+            values[name] = float(value)
+    return values
+
+
+def _run_provenance(runs) -> tuple[dict, ...]:
+    return tuple(
+        {
+            "label": run.label,
+            "source": source_kind(run.source),
+            "position_m": np.asarray(run.source.position, np.float64).tolist(),
+            "n_photons": float(np.asarray(run.source.n_photons)),
+            "n_events": run.n_events,
+        }
+        for run in runs
+    )
+
+
+def calibrate(
+    detector: Detector,
+    runs: Sequence | Iterable,
+    init_params: Params,
+    free: Sequence[str] | str,
+    method="gauss-newton",
+    likelihood: str = "charge",
+    *,
+    config: TransportConfig | None = None,
+    key=None,
+    max_iterations: int = 50,
+    loss_tolerance: float = 1e-3,
+    step_tolerance: float = 1e-2,
+    truth: Params | None = None,
+    callback: Callable[[int, float, dict], None] | None = None,
+) -> CalibrationResult:
+    """Fit the ``free`` fields of ``Params`` to calibration runs.
+
+    Args:
+        detector: the detector the runs were recorded in.
+        runs: (source, events) pairs or ``CalibrationRun``s; events are one ``Event``, a
+            list of them or an open ``EventFile``. A run's events are all flashes of its
+            source; "charge" sums them per sensor (exactly), "charge+time" fits them
+            jointly event by event.
+        init_params: starting values; fields not in ``free`` stay fixed at them.
+        free: names of the fields to fit (scalars and per-sensor arrays), a list or a
+            comma-separated string.
+        method: "gauss-newton" (default: Fisher scoring / Newton, a few iterations),
+            "lbfgs", "adam", or a step-rule object (``methods.py``).
+        likelihood: "charge" (run-summed charge per sensor) or "charge+time" (per-event
+            charge and first-hit time).
+        config: expected-mode settings (rays, bounces, readout window in ns relative to
+            the source time, which must match the one the events were recorded with).
+        key: ``jax.random`` key of the expected mode's rays (default ``key(0)``).
+        max_iterations: step limit.
+        loss_tolerance: converged when an iteration lowers -log L by less than this ...
+        step_tolerance: ... and moves every free value by less than this many sigma
+            (Gauss-Newton; other methods: unconstrained units).
+        truth: the true parameters, kept in the result for pulls (pseudo-data).
+        callback: called after every iteration with (iteration, loss, values), values
+            the physical values of the dense free entries.
+
+    Returns:
+        ``CalibrationResult`` (fitted params, errors, correlation, history).
+
+    Raises:
+        ConfigError: bad runs, parameters, names or settings; runs from another detector;
+            or free parameters these runs cannot constrain (flat directions of the
+            curvature), each one line.
+    """
+    started = time.perf_counter()
+    validate_params(init_params, detector.n_sensors)
+    layout = free_layout(free, detector.n_sensors)
+    step_rule = make_method(method)
+    if int(max_iterations) < 1:
+        raise ConfigError(f"max_iterations = {max_iterations}: must be >= 1")
+    config = TransportConfig() if config is None else config
+    key = jax.random.key(0) if key is None else key
+    prepared = prepare_runs(runs, detector, likelihood)
+    problem = CalibrationProblem(detector, prepared, init_params, layout, likelihood, config, key)
+
+    theta = problem.initial_theta()
+    _, _, _, curvature = problem.curvature(theta)
+    flat = unconstrained_labels(layout, curvature)
+    if flat:
+        raise ConfigError(
+            f"free: {', '.join(flat)}: not constrained by these runs (1-sigma beyond"
+            f" {UNCONSTRAINED_SIGMA:g} in unconstrained units: a flat direction of the"
+            " Fisher matrix); fix them or add runs sensitive to them"
+        )
+
+    state = step_rule.init(problem, theta)
+    history = [{"iteration": 0, "loss": problem.value(theta), "time_s": 0.0,
+                "values": _dense_values(problem, problem.params_of(theta))}]
+    converged, message = False, f"stopped at max_iterations = {max_iterations}"
+    for iteration in range(1, int(max_iterations) + 1):
+        theta, state, step = step_rule.update(problem, theta, state)
+        values = _dense_values(problem, problem.params_of(theta))
+        history.append({"iteration": iteration, "loss": step.loss,
+                        "time_s": time.perf_counter() - started, "values": values})
+        if callback is not None:
+            callback(iteration, step.loss, values)
+        if step.loss_change == 0.0 and step.step_size == 0.0:
+            converged = step_rule.__class__.__name__ == "GaussNewton"
+            message = "no step lowers -log L further" + (
+                "" if converged else f" ({step_rule.__class__.__name__})"
+            )
+            break
+        if step.loss_change < loss_tolerance and step.step_size < step_tolerance:
+            converged, message = True, (
+                f"converged: -log L changed by {step.loss_change:.2g} < {loss_tolerance:g}"
+                f" and the largest step was {step.step_size:.2g} < {step_tolerance:g}"
+            )
+            break
+
+    loss, _, _, curvature = problem.curvature(theta)
+    params = problem.params_of(theta)
+    errors, correlation = _physical_errors(problem, theta, curvature)
+    return CalibrationResult(
+        params=params,
+        errors=errors,
+        correlation=correlation,
+        correlation_names=tuple(layout.dense_names()),
+        history=tuple(history),
+        free=layout.names,
+        method=method if isinstance(method, str) else type(method).__name__,
+        likelihood=likelihood,
+        converged=converged,
+        message=message,
+        loss=loss,
+        settings={
+            "n_rays": config.n_rays,
+            "n_bounces": config.n_bounces,
+            "window_ns": list(config.window),
+            "max_iterations": int(max_iterations),
+            "loss_tolerance": loss_tolerance,
+            "step_tolerance": step_tolerance,
+        },
+        runs=_run_provenance(prepared),
+        detector={"name": detector.name, "n_sensors": detector.n_sensors},
+        truth=truth,
+        wall_time_s=time.perf_counter() - started,
+    )

@@ -1,0 +1,207 @@
+"""Step rules of a calibration, each an object with ``init`` and ``update``.
+
+``update(problem, theta, state) -> (theta, state, Step)`` takes one step from free
+values ``theta`` (unconstrained) and reports the loss and how far it moved, so one
+loop (``fit.calibrate``) drives them all:
+
+- ``GaussNewton``: Fisher scoring (charge likelihood) or Newton on the observed
+  information (charge and time), Levenberg-Marquardt damped, each step solved in the
+  per-sensor block structure; a handful of steps. Default.
+- ``LBFGS``: limited-memory BFGS steps with a backtracking (Armijo) line search.
+- ``Adam``: ``optax.adam`` steps, for very large problems where even one curvature is
+  too costly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import ConfigError, format_value
+from .objective import CalibrationProblem
+
+
+@dataclasses.dataclass(frozen=True)
+class Step:
+    """What one update did.
+
+    Attributes:
+        loss: -log L after the step.
+        loss_change: loss before minus loss after (>= 0 for an accepted step).
+        step_size: largest |change| of a free value in units of its 1-sigma uncertainty
+            when the method knows it (Gauss-Newton), else in unconstrained units.
+    """
+
+    loss: float
+    loss_change: float
+    step_size: float
+
+
+def _add(theta: dict, delta: dict, scale: float = 1.0) -> dict:
+    return {name: theta[name] + scale * delta[name] for name in theta}
+
+
+def _flat(problem: CalibrationProblem, theta: dict) -> np.ndarray:
+    dense, sensor = problem.layout.split(theta)
+    return np.concatenate([np.asarray(dense, np.float64), np.asarray(sensor, np.float64).ravel()])
+
+
+def _unflat(problem: CalibrationProblem, vector: np.ndarray, dtype) -> dict:
+    layout = problem.layout
+    dense = jnp.asarray(vector[: layout.n_dense], dtype)
+    sensor = jnp.asarray(
+        vector[layout.n_dense:].reshape(layout.n_sensors, len(layout.sensor_fields)), dtype
+    )
+    return layout.join(dense, sensor)
+
+
+def _dtype(theta: dict):
+    return jnp.result_type(*theta.values())
+
+
+@dataclasses.dataclass(frozen=True)
+class GaussNewton:
+    """Damped Gauss-Newton / Fisher scoring.
+
+    Attributes:
+        damping: initial Levenberg-Marquardt damping (relative to the diagonal).
+        max_retries: damping increases (x4) tried per step before giving up.
+    """
+
+    damping: float = 1e-3
+    max_retries: int = 12
+
+    def init(self, problem: CalibrationProblem, theta: dict) -> dict[str, Any]:
+        """State: the current damping and the last curvature (None before a step)."""
+        return {"damping": self.damping, "curvature": None}
+
+    def update(self, problem: CalibrationProblem, theta: dict, state: dict):
+        """One accepted damped step (or a zero step if none lowers the loss)."""
+        value, grad_dense, grad_sensor, curvature = problem.curvature(theta)
+        damping = state["damping"]
+        dtype = _dtype(theta)
+        for _ in range(self.max_retries):
+            step_dense, step_sensor = curvature.damped(damping).solve(-grad_dense, -grad_sensor)
+            delta = problem.layout.join(
+                jnp.asarray(step_dense, dtype), jnp.asarray(step_sensor, dtype)
+            )
+            candidate = _add(theta, delta)
+            new_value = problem.value(candidate)
+            if np.isfinite(new_value) and new_value <= value:
+                dense_var, sensor_var = curvature.covariance()
+                sigma = np.concatenate(
+                    [np.sqrt(np.abs(np.diag(dense_var))), np.sqrt(np.abs(sensor_var)).ravel()]
+                )
+                moved = np.concatenate([np.abs(step_dense), np.abs(step_sensor).ravel()])
+                size = float(np.max(moved / np.where(sigma > 0, sigma, np.inf), initial=0.0))
+                new_state = {"damping": max(damping / 3.0, 1e-9), "curvature": curvature}
+                return candidate, new_state, Step(new_value, value - new_value, size)
+            damping = max(damping, 1e-6) * 4.0
+        return theta, {"damping": damping, "curvature": curvature}, Step(value, 0.0, 0.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class LBFGS:
+    """Limited-memory BFGS with a backtracking line search.
+
+    Attributes:
+        memory: number of (step, gradient change) pairs kept.
+        max_halvings: line-search halvings before giving up a step.
+    """
+
+    memory: int = 10
+    max_halvings: int = 30
+
+    def init(self, problem: CalibrationProblem, theta: dict) -> dict[str, Any]:
+        """State: the loss and flat gradient at ``theta`` and the memory pairs."""
+        value, gradient = problem.value_and_grad(theta)
+        return {"value": value, "gradient": _flat(problem, gradient), "pairs": []}
+
+    def update(self, problem: CalibrationProblem, theta: dict, state: dict):
+        """One L-BFGS step (two-loop recursion) with an Armijo backtracking search."""
+        gradient, pairs = state["gradient"], state["pairs"]
+        direction = -gradient.copy()
+        alphas = []
+        for s, y in reversed(pairs):
+            alpha = s @ direction / (y @ s)
+            direction -= alpha * y
+            alphas.append(alpha)
+        if pairs:
+            s, y = pairs[-1]
+            direction *= (s @ y) / (y @ y)
+        else:
+            direction /= max(1.0, float(np.linalg.norm(gradient)))
+        for (s, y), alpha in zip(pairs, reversed(alphas), strict=True):
+            beta = y @ direction / (y @ s)
+            direction += (alpha - beta) * s
+        x0 = _flat(problem, theta)
+        slope = float(gradient @ direction)
+        if slope >= 0:
+            direction, slope = -gradient, -float(gradient @ gradient)
+        dtype = _dtype(theta)
+        scale = 1.0
+        for _ in range(self.max_halvings):
+            x1 = x0 + scale * direction
+            candidate = _unflat(problem, x1, dtype)
+            value, new_gradient = problem.value_and_grad(candidate)
+            if np.isfinite(value) and value <= state["value"] + 1e-4 * scale * slope:
+                new_gradient = _flat(problem, new_gradient)
+                s, y = x1 - x0, new_gradient - gradient
+                pairs = (pairs + [(s, y)])[-self.memory:] if s @ y > 1e-12 else pairs
+                new_state = {"value": value, "gradient": new_gradient, "pairs": pairs}
+                step = Step(value, state["value"] - value, float(np.max(np.abs(s), initial=0.0)))
+                return candidate, new_state, step
+            scale *= 0.5
+        return theta, state, Step(state["value"], 0.0, 0.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class Adam:
+    """First-order steps from ``optax.adam``.
+
+    Attributes:
+        learning_rate: step size in unconstrained units.
+    """
+
+    learning_rate: float = 0.02
+
+    def _optimizer(self):
+        import optax
+
+        return optax.adam(self.learning_rate)
+
+    def init(self, problem: CalibrationProblem, theta: dict) -> dict[str, Any]:
+        """State: optax's state and the loss at ``theta``."""
+        return {"optax": self._optimizer().init(theta), "value": problem.value(theta)}
+
+    def update(self, problem: CalibrationProblem, theta: dict, state: dict):
+        """One Adam step (always taken)."""
+        value, gradient = problem.value_and_grad(theta)
+        updates, optax_state = self._optimizer().update(gradient, state["optax"], theta)
+        new_theta = jax.tree.map(jnp.add, theta, updates)
+        size = max(float(jnp.max(jnp.abs(u))) for u in jax.tree.leaves(updates))
+        new_value = problem.value(new_theta)
+        return new_theta, {"optax": optax_state, "value": new_value}, Step(
+            new_value, value - new_value, size
+        )
+
+
+#: Method names accepted by ``calibrate(method=...)`` and ``photonflow calibrate``.
+METHODS = {"gauss-newton": GaussNewton, "lbfgs": LBFGS, "adam": Adam}
+
+
+def make_method(method) -> GaussNewton | LBFGS | Adam:
+    """A step rule from a name in ``METHODS`` or a step-rule object (returned as is)."""
+    if isinstance(method, str):
+        if method not in METHODS:
+            raise ConfigError(
+                f"method = {format_value(method)}: must be one of {', '.join(METHODS)}"
+            )
+        return METHODS[method]()
+    if not all(hasattr(method, name) for name in ("init", "update")):
+        raise ConfigError(f"method = {format_value(method)}: needs init and update")
+    return method

@@ -1,0 +1,177 @@
+"""``CalibrationResult``: fitted parameters, 1-sigma errors, correlations and history,
+saved to and loaded from JSON (``docs/calibration.md``, "Result file")."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._version import __version__
+from ..errors import ConfigError
+from ..params import Params
+
+#: Value of the ``format`` key of a calibration result file, and its layout version.
+FORMAT = "photonflow-calibration"
+FORMAT_VERSION = 1
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationResult:
+    """The outcome of ``calibrate``.
+
+    Attributes:
+        params: fitted ``Params`` (fixed fields at their starting values).
+        errors: ``Params``-shaped 1-sigma uncertainties in the fields' units (from the
+            inverse curvature, the Cramer-Rao bound for the charge likelihood); zero for
+            fixed fields.
+        correlation: (P, P) correlation matrix of the dense (scalar) free entries.
+        correlation_names: the P labels of its rows (e.g. "absorption_length").
+        history: one dict per iteration: ``iteration``, ``loss`` (-log L), ``time_s``
+            (since the start) and ``values`` (label -> physical value of every dense
+            free entry).
+        free: the free fields.
+        method: step rule used ("gauss-newton", "lbfgs", "adam").
+        likelihood: "charge" or "charge+time".
+        converged: whether the convergence criteria were met.
+        message: why the fit stopped.
+        loss: final -log L.
+        settings: transport and fit settings (rays, bounces, window ns, tolerances).
+        runs: provenance of each run: label, source kind, position m, photons, events.
+        detector: the detector's name and sensor count.
+        truth: the true ``Params`` when known (pseudo-data), else None.
+        wall_time_s: wall time of the fit, s.
+    """
+
+    params: Params
+    errors: Params
+    correlation: np.ndarray
+    correlation_names: tuple[str, ...]
+    history: tuple[dict, ...]
+    free: tuple[str, ...]
+    method: str
+    likelihood: str
+    converged: bool
+    message: str
+    loss: float
+    settings: dict
+    runs: tuple[dict, ...]
+    detector: dict
+    truth: Params | None = None
+    wall_time_s: float = math.nan
+
+    def pulls(self) -> dict[str, np.ndarray]:
+        """(fitted - true) / error per free field (needs ``truth``)."""
+        if self.truth is None:
+            raise ConfigError("pulls: this result has no true parameters")
+        return {
+            name: (np.asarray(getattr(self.params, name), np.float64)
+                   - np.asarray(getattr(self.truth, name), np.float64))
+            / np.asarray(getattr(self.errors, name), np.float64)
+            for name in self.free
+        }
+
+    def to_json(self) -> dict[str, Any]:
+        """The result as a JSON-able dict (arrays as lists)."""
+        return {
+            "format": FORMAT,
+            "version": FORMAT_VERSION,
+            "photonflow_version": __version__,
+            "detector": self.detector,
+            "free": list(self.free),
+            "method": self.method,
+            "likelihood": self.likelihood,
+            "converged": self.converged,
+            "message": self.message,
+            "loss": self.loss,
+            "wall_time_s": self.wall_time_s,
+            "settings": self.settings,
+            "runs": list(self.runs),
+            "params": _params_json(self.params),
+            "errors": _params_json(self.errors),
+            "truth": None if self.truth is None else _params_json(self.truth),
+            "correlation": {
+                "names": list(self.correlation_names),
+                "matrix": np.asarray(self.correlation).tolist(),
+            },
+            "history": list(self.history),
+        }
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the JSON file (under a temporary name, then renamed); returns the path."""
+        path = Path(path)
+        temporary = path.with_name(f".{path.name}.partial")
+        temporary.write_text(json.dumps(self.to_json(), indent=1, allow_nan=True) + "\n")
+        os.replace(temporary, path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> CalibrationResult:
+        """Read a file written by ``save`` (one-line ``ConfigError`` if it is not one)."""
+        data = _read(path)
+        correlation = data.get("correlation") or {"names": [], "matrix": []}
+        truth = data.get("truth")
+        return cls(
+            params=_params_from_json(data["params"], path, "params"),
+            errors=_params_from_json(data["errors"], path, "errors"),
+            correlation=np.asarray(correlation["matrix"], dtype=np.float64),
+            correlation_names=tuple(correlation["names"]),
+            history=tuple(data.get("history", ())),
+            free=tuple(data["free"]),
+            method=data["method"],
+            likelihood=data["likelihood"],
+            converged=bool(data["converged"]),
+            message=data.get("message", ""),
+            loss=float(data["loss"]),
+            settings=data.get("settings", {}),
+            runs=tuple(data.get("runs", ())),
+            detector=data.get("detector", {}),
+            truth=None if truth is None else _params_from_json(truth, path, "truth"),
+            wall_time_s=float(data.get("wall_time_s", math.nan)),
+        )
+
+
+def _params_json(params: Params) -> dict[str, Any]:
+    out = {}
+    for name, value in params.to_dict().items():
+        value = np.asarray(value, dtype=np.float64)
+        out[name] = value.tolist() if value.ndim else float(value)
+    return out
+
+
+def _params_from_json(values: dict, path, key: str) -> Params:
+    try:
+        return Params.from_dict(values)
+    except ConfigError as error:
+        raise ConfigError(f"{path}: {key}: {error}") from None
+
+
+def _read(path) -> dict:
+    try:
+        data = json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ConfigError(f"{path}: not a calibration result ({error})") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise ConfigError(f"{path}: not a calibration result (format is not {FORMAT!r})")
+    if int(data.get("version", 0)) > FORMAT_VERSION:
+        raise ConfigError(
+            f"{path}: calibration format version {data['version']} is newer than this"
+            f" photonflow reads ({FORMAT_VERSION}); upgrade photonflow"
+        )
+    return data
+
+
+def load_params(path: str | os.PathLike) -> Params:
+    """The fitted ``Params`` of a calibration result file (``CalibrationResult.save``),
+    ready for ``expected``, ``sample`` and reconstruction."""
+    return _params_from_json(_read(path)["params"], path, "params")
+
+
+

@@ -1,0 +1,89 @@
+"""A symmetric matrix with per-sensor block structure, solved by Schur complement.
+
+The curvature of a calibration with P dense entries (scalars) and F per-sensor fields
+over N sensors is
+
+    [ A     C^T ]     A: (P, P) dense-dense
+    [ C     B   ]     C: N blocks (F, P) sensor-dense; B: N blocks (F, F), block-diagonal
+
+because a sensor's likelihood terms depend on its own per-sensor values only. Solving
+and inverting cost O(N F^3 + P^3 + N F P^2) instead of O((P + N F)^3): with P = 4
+optical parameters and 11,146 efficiencies that is milliseconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class StructuredMatrix:
+    """Curvature blocks in float64 numpy.
+
+    Attributes:
+        a: (P, P) dense-dense block.
+        c: (N, F, P) sensor-dense blocks.
+        b: (N, F, F) per-sensor diagonal blocks.
+    """
+
+    a: np.ndarray
+    c: np.ndarray
+    b: np.ndarray
+
+    def damped(self, damping: float) -> StructuredMatrix:
+        """Levenberg-Marquardt: every diagonal element multiplied by (1 + damping)."""
+        a = self.a + damping * np.diag(np.diag(self.a))
+        eye = np.eye(self.b.shape[1])
+        b = self.b + damping * self.b * eye
+        return StructuredMatrix(a, self.c, b)
+
+    def _inverse_blocks(self) -> np.ndarray:
+        return np.linalg.inv(self.b) if self.b.shape[1] else self.b
+
+    def schur(self, b_inverse: np.ndarray | None = None) -> np.ndarray:
+        """S = A - sum_j C_j^T B_j^-1 C_j, (P, P)."""
+        b_inverse = self._inverse_blocks() if b_inverse is None else b_inverse
+        return self.a - np.einsum("nfp,nfg,ngq->pq", self.c, b_inverse, self.c)
+
+    def solve(self, dense: np.ndarray, sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """x with M x = (dense (P,), sensor (N, F)); returned as ((P,), (N, F))."""
+        b_inverse = self._inverse_blocks()
+        s = self.schur(b_inverse)
+        binv_sensor = np.einsum("nfg,ng->nf", b_inverse, sensor)
+        rhs = dense - np.einsum("nfp,nf->p", self.c, binv_sensor)
+        x_dense = np.linalg.solve(s, rhs) if s.size else rhs
+        x_sensor = np.einsum(
+            "nfg,ng->nf", b_inverse, sensor - np.einsum("nfp,p->nf", self.c, x_dense)
+        )
+        return x_dense, x_sensor
+
+    def covariance(self) -> tuple[np.ndarray, np.ndarray]:
+        """The inverse's dense block (P, P) and the per-sensor diagonal variances (N, F).
+
+        Where the matrix is singular (an unconstrained direction) the variances are inf.
+        """
+        b_inverse = self._inverse_blocks()
+        s = self.schur(b_inverse)
+        s_inverse = np.linalg.inv(s) if s.size else s
+        # (B^-1 C S^-1 C^T B^-1)_jj per sensor, diagonal only
+        binv_c = np.einsum("nfg,ngp->nfp", b_inverse, self.c)
+        extra = np.einsum("nfp,pq,nfq->nf", binv_c, s_inverse, binv_c)
+        sensor = np.einsum("nff->nf", b_inverse) + extra
+        return s_inverse, sensor
+
+    def dense_matrix(self) -> np.ndarray:
+        """The full (P + N F) matrix (dense entries first, then sensor-major per-sensor
+        entries); for tests and small problems only."""
+        n, f, p = self.c.shape
+        size = p + n * f
+        full = np.zeros((size, size))
+        full[:p, :p] = self.a
+        c_flat = self.c.reshape(n * f, p)
+        full[p:, :p] = c_flat
+        full[:p, p:] = c_flat.T
+        for j in range(n):
+            block = slice(p + j * f, p + (j + 1) * f)
+            full[block, block] = self.b[j]
+        return full
