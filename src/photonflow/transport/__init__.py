@@ -5,6 +5,7 @@ mode) and photon-by-photon Monte Carlo (sampled mode), on one description of the
 from .direct import SPEED_OF_LIGHT, direct_light, direct_light_jit, interpolate_acceptance
 from .expected import expected
 from .optics import TransportConfig
+from .production import produce_events
 from .pseudo_data import sample, sample_events
 from .sampled import sample_photon_bundle, sample_photons
 from .solid_angle import disc_solid_angle, plane_basis
@@ -20,6 +21,7 @@ __all__ = [
     "expected",
     "interpolate_acceptance",
     "plane_basis",
+    "produce_events",
     "random_tracks",
     "sample",
     "sample_events",

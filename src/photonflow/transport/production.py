@@ -16,6 +16,7 @@ import collections
 import contextlib
 import logging
 import numbers
+import signal
 from collections.abc import Iterator
 
 from ..errors import ConfigError, format_value
@@ -69,10 +70,12 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
 
     with contextlib.ExitStack() as stack:
         if scheduler is None:
-            cluster = stack.enter_context(LocalCluster(
-                n_workers=_check_count("workers", workers, 1), threads_per_worker=1,
-                processes=True, dashboard_address=None, silence_logs=logging.ERROR,
-            ))
+            n_workers = _check_count("workers", workers, 1)
+            with _sigint_ignored():  # Ctrl-C stops the parent, which closes the cluster
+                cluster = stack.enter_context(LocalCluster(
+                    n_workers=n_workers, threads_per_worker=1, processes=True,
+                    dashboard_address=None, silence_logs=logging.ERROR,
+                ))
             client = stack.enter_context(Client(cluster))
         else:
             try:
@@ -83,6 +86,22 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
                     f"scheduler = {scheduler!r}: cannot connect ({reason})"
                 ) from None
         yield client
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """Ignore SIGINT within the block (in the main thread), so that worker processes
+    started in it inherit that: a Ctrl-C, sent to the whole process group, then reaches
+    only the parent, which stops the run and closes the cluster cleanly."""
+    try:
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _dask_events(client, detector, params, source, seed, first_event, n_events, block,
