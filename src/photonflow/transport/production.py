@@ -164,7 +164,9 @@ def produce_events(
     is used, whose workers must import photonflow; blocks of ``block_events`` events
     (default ``block_size``) are computed as tasks and their events yielded as soon as
     every earlier one has been. ``progress=True`` shows a rich progress bar counting
-    events from 0 to ``first_event + n_events`` (a resumed run starts part way).
+    events from 0 to ``first_event + n_events`` (a resumed run starts part way). Local
+    workers are spawned processes: a script that passes ``workers`` needs the usual
+    ``if __name__ == "__main__":`` guard.
 
     Args:
         source: one calibration source or ``Track`` for every event, or a sequence of
