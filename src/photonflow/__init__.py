@@ -5,6 +5,7 @@ Units everywhere: metres, nanoseconds, MeV, radians; wavelength in nm.
 """
 
 from ._version import __version__
+from .calibration import CalibrationResult, calibrate, load_params
 from .config import load_config, load_detector
 from .errors import ConfigError, EventFileError, PhotonflowError, SensorFileError
 from .generator import Photons, Track, generate
@@ -27,6 +28,9 @@ def presets() -> dict[str, dict[str, object]]:
 
 __all__ = [
     "Box",
+    "CalibrationResult",
+    "calibrate",
+    "load_params",
     "DiffuserSource",
     "IsotropicSource",
     "LaserSource",

@@ -165,7 +165,7 @@ def calibrate(
 
     theta = problem.initial_theta()
     _, _, _, curvature = problem.curvature(theta)
-    flat = unconstrained_labels(layout, curvature)
+    flat = unconstrained_labels(layout, curvature.positive())
     if flat:
         raise ConfigError(
             f"free: {', '.join(flat)}: not constrained by these runs (1-sigma beyond"

@@ -82,6 +82,7 @@ class GaussNewton:
     def update(self, problem: CalibrationProblem, theta: dict, state: dict):
         """One accepted damped step (or a zero step if none lowers the loss)."""
         value, grad_dense, grad_sensor, curvature = problem.curvature(theta)
+        curvature = curvature.positive()
         damping = state["damping"]
         dtype = _dtype(theta)
         for _ in range(self.max_retries):

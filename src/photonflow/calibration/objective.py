@@ -25,6 +25,7 @@ Both curvatures are assembled in the per-sensor block structure of ``structured.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -34,7 +35,7 @@ from ..geometry.detector import Detector
 from ..likelihood import charge_logpdf, dark_expectation, dense_sensor_nll, log1mexp
 from ..params import Params, from_unconstrained, to_unconstrained
 from ..prediction import Prediction
-from ..transport.expected import expected_function
+from ..transport.expected import expected_inputs, expected_jit
 from ..transport.optics import TransportConfig
 from .information import charge_information, information_table
 from .layout import FreeLayout
@@ -81,6 +82,7 @@ class _RunArrays:
 
     source: object
     key: jax.Array
+    n_events: jax.Array
     charge_sum: jax.Array
     hit_any: jax.Array
     hit: jax.Array | None
@@ -90,9 +92,141 @@ class _RunArrays:
 
 jax.tree_util.register_dataclass(
     _RunArrays,
-    data_fields=["source", "key", "charge_sum", "hit_any", "hit", "charge", "time"],
+    data_fields=[
+        "source", "key", "n_events", "charge_sum", "hit_any", "hit", "charge", "time"
+    ],
     meta_fields=[],
 )
+
+
+@dataclasses.dataclass(frozen=True)
+class _Static:
+    """What a compiled run function depends on statically (hashable): the free layout,
+    the likelihood, the detector's shape, the transport config, the run's readout
+    window (ns) and the single-p.e. width (p.e.) of the Fisher information. Problems
+    that share it share compiled code."""
+
+    layout: FreeLayout
+    likelihood: str
+    shape: object
+    config: TransportConfig
+    window: tuple[float, float]
+    spe_width: float
+
+
+def _params_of(theta: dict, base: Params) -> Params:
+    return from_unconstrained(dataclasses.replace(base, **theta))
+
+
+def _prediction(theta, base, sensors, data, cached, static: _Static) -> Prediction:
+    params = _params_of(theta, base)
+    if cached is None:
+        positions, normals, radius, grid, near_grid = sensors
+        cached = expected_jit(
+            positions, normals, radius, grid, without_response(params), data.source,
+            data.key, near_grid, shape=static.shape, config=static.config,
+        )
+    return with_response(cached, params)
+
+
+def _mean(theta, base, sensors, data, cached, static: _Static):
+    """(N,) expected photoelectrons of the run, summed over its events, p.e."""
+    prediction = _prediction(theta, base, sensors, data, cached, static)
+    dark = dark_expectation(_params_of(theta, base), static.window)
+    return data.n_events * (prediction.charge + dark)
+
+
+def _run_nll(theta, base, sensors, data, cached, static: _Static):
+    """-log L of one run."""
+    if static.likelihood == "charge":
+        mean = _mean(theta, base, sensors, data, cached, static)
+        spe_width = _params_of(theta, base).spe_width
+        return jnp.sum(summed_charge_nll(data.charge_sum, data.hit_any, mean, spe_width))
+    prediction = _prediction(theta, base, sensors, data, cached, static)
+
+    def event_nll(hit, charge, time):
+        return jnp.sum(
+            dense_sensor_nll(
+                prediction, hit, charge, time, prediction.dark_rate,
+                prediction.spe_width, static.window,
+            )
+        )
+
+    return jnp.sum(jax.vmap(event_nll)(data.hit, data.charge, data.time))
+
+
+def _tangents(layout: FreeLayout, dtype):
+    """Tangent directions: one-hot per dense entry, then all-ones per per-sensor field
+    (a sensor's terms depend on its own per-sensor values only, so the all-ones
+    direction yields each sensor's own derivative)."""
+    n_dense, n_columns, n = layout.n_dense, len(layout.sensor_fields), layout.n_sensors
+    dense = np.zeros((n_dense + n_columns, n_dense))
+    sensor = np.zeros((n_dense + n_columns, n, n_columns))
+    dense[np.arange(n_dense), np.arange(n_dense)] = 1.0
+    for column in range(n_columns):
+        sensor[n_dense + column, :, column] = 1.0
+    return jnp.asarray(dense, dtype), jnp.asarray(sensor, dtype)
+
+
+def _fisher_run(theta, base, sensors, data, cached, static: _Static):
+    """(value, gradient (P,), (N, F), Fisher parts A, C, B) of one run, charge
+    likelihood: J from forward-mode derivatives of M, I(M) from ``information``."""
+    layout = static.layout
+    dense0, sensor0 = layout.split(theta)
+
+    def mean_of(dense, sensor):
+        return _mean(layout.join(dense, sensor), base, sensors, data, cached, static)
+
+    tangent_dense, tangent_sensor = _tangents(layout, data.charge_sum.dtype)
+    mean, jac = jax.vmap(
+        lambda td, ts: jax.jvp(mean_of, (dense0, sensor0), (td, ts)), out_axes=(None, 0)
+    )(tangent_dense, tangent_sensor)
+    spe_width = _params_of(theta, base).spe_width
+
+    def total(m):
+        return jnp.sum(summed_charge_nll(data.charge_sum, data.hit_any, m, spe_width))
+
+    value, score = jax.value_and_grad(total)(mean)
+    weight = charge_information(mean, static.spe_width)
+    jac_dense = jac[: layout.n_dense].T  # (N, P)
+    jac_sensor = jac[layout.n_dense:].T  # (N, F)
+    grad_dense = jac_dense.T @ score
+    grad_sensor = jac_sensor * score[:, None]
+    a = jac_dense.T @ (weight[:, None] * jac_dense)
+    c = (weight[:, None] * jac_sensor)[:, :, None] * jac_dense[:, None, :]
+    b = (weight[:, None] * jac_sensor)[:, :, None] * jac_sensor[:, None, :]
+    return value, grad_dense, grad_sensor, a, c, b
+
+
+def _hessian_run(theta, base, sensors, data, cached, static: _Static):
+    """(value, gradient, observed-information parts A, C, B) of one run from
+    Hessian-vector products along the tangents of ``_tangents``."""
+    layout = static.layout
+    dense0, sensor0 = layout.split(theta)
+
+    def nll_of(dense, sensor):
+        return _run_nll(layout.join(dense, sensor), base, sensors, data, cached, static)
+
+    gradient = jax.grad(nll_of, argnums=(0, 1))
+    value, (grad_dense, grad_sensor) = jax.value_and_grad(nll_of, argnums=(0, 1))(
+        dense0, sensor0
+    )
+    tangent_dense, tangent_sensor = _tangents(layout, data.charge_sum.dtype)
+    h_dense, h_sensor = jax.lax.map(
+        lambda pair: jax.jvp(gradient, (dense0, sensor0), pair)[1],
+        (tangent_dense, tangent_sensor),
+    )
+    n_dense = layout.n_dense
+    a = h_dense[:n_dense]  # (P, P)
+    c = jnp.moveaxis(h_sensor[:n_dense], 0, -1)  # (N, F, P)
+    b = jnp.moveaxis(h_sensor[n_dense:], 0, -1)  # (N, F, F)
+    return value, grad_dense, grad_sensor, a, c, b
+
+
+_run_nll_jit = jax.jit(_run_nll, static_argnames=("static",))
+_value_and_grad_jit = jax.jit(jax.value_and_grad(_run_nll), static_argnames=("static",))
+_fisher_jit = jax.jit(_fisher_run, static_argnames=("static",))
+_hessian_jit = jax.jit(_hessian_run, static_argnames=("static",))
 
 
 class CalibrationProblem:
@@ -124,16 +258,17 @@ class CalibrationProblem:
         self.likelihood = likelihood
         self.config = config
         self.base = to_unconstrained(init_params)
-        self.spe_width = float(init_params.spe_width)
+        spe_width = float(init_params.spe_width)
         if likelihood == "charge":
-            information_table(self.spe_width)  # built here, outside jit (cached)
+            information_table(spe_width)  # built here, outside jit (cached)
         dtype = jnp.result_type(init_params.absorption_length)
-        self.predict = expected_function(detector, dtype, config=config)
+        self.sensors = expected_inputs(detector, dtype)
         per_event = likelihood == "charge+time"
         self.arrays = [
             _RunArrays(
-                source=run.source,
+                source=jax.tree.map(lambda x: jnp.asarray(x, dtype), run.source),
                 key=jax.random.fold_in(key, index),
+                n_events=jnp.asarray(run.n_events, dtype),
                 charge_sum=jnp.asarray(run.charge_sum, dtype),
                 hit_any=jnp.asarray(run.hit_any),
                 hit=jnp.asarray(run.hit) if per_event else None,
@@ -142,25 +277,23 @@ class CalibrationProblem:
             )
             for index, run in enumerate(runs)
         ]
-        self.windows = [
-            tuple(float(run.source.time) + w for w in config.window) for run in runs
+        self.statics = [
+            _Static(
+                layout=layout, likelihood=likelihood, shape=detector.shape, config=config,
+                window=tuple(float(run.source.time) + w for w in config.window),
+                spe_width=spe_width,
+            )
+            for run in runs
         ]
-        if layout.needs_transport:
-            self.cached = [None] * len(runs)
-        else:
-            transport = without_response(init_params)
+        self.cached = [None] * len(runs)
+        if not layout.needs_transport:
+            theta = self.initial_theta()
+            transport = without_response(self.params_of(theta))
             self.cached = [
-                jax.block_until_ready(self.predict(transport, data.source, data.key))
+                _transport_jit(self.sensors, transport, data.source, data.key,
+                               shape=detector.shape, config=config)
                 for data in self.arrays
             ]
-        self._value_and_grad = jax.jit(
-            jax.value_and_grad(self._run_nll), static_argnames=("window", "n_events")
-        )
-        self._run_nll_jit = jax.jit(self._run_nll, static_argnames=("window", "n_events"))
-        self._fisher_parts = jax.jit(self._fisher_run, static_argnames=("window", "n_events"))
-        self._hessian_parts = jax.jit(self._hessian_run, static_argnames=("window", "n_events"))
-
-    # -- parameters ---------------------------------------------------------------
 
     def initial_theta(self) -> dict:
         """The free fields of the initial parameters, unconstrained."""
@@ -168,136 +301,20 @@ class CalibrationProblem:
 
     def params_of(self, theta: dict) -> Params:
         """Physical ``Params`` of free values ``theta`` (fixed fields from the start)."""
-        return from_unconstrained(dataclasses.replace(self.base, **theta))
+        return _params_of(theta, self.base)
 
-    # -- one run --------------------------------------------------------------------
-
-    def _prediction(self, theta, data, cached) -> Prediction:
-        params = self.params_of(theta)
-        transport = (
-            cached if cached is not None
-            else self.predict(without_response(params), data.source, data.key)
-        )
-        return with_response(transport, params)
-
-    def _mean(self, theta, data, cached, window, n_events):
-        """(N,) expected photoelectrons of the run, summed over its events, p.e."""
-        prediction = self._prediction(theta, data, cached)
-        dark = dark_expectation(self.params_of(theta), window)
-        return n_events * (prediction.charge + dark)
-
-    def _run_nll(self, theta, data, cached, window, n_events):
-        if self.likelihood == "charge":
-            mean = self._mean(theta, data, cached, window, n_events)
-            spe_width = self.params_of(theta).spe_width
-            return jnp.sum(summed_charge_nll(data.charge_sum, data.hit_any, mean, spe_width))
-        prediction = self._prediction(theta, data, cached)
-
-        def event_nll(hit, charge, time):
-            return jnp.sum(
-                dense_sensor_nll(
-                    prediction, hit, charge, time, prediction.dark_rate,
-                    prediction.spe_width, window,
-                )
-            )
-
-        return jnp.sum(jax.vmap(event_nll)(data.hit, data.charge, data.time))
-
-    def _tangents(self):
-        """Tangent directions: one-hot per dense entry, then all-ones per per-sensor
-        field (a sensor's terms depend on its own per-sensor values only, so the
-        all-ones direction yields each sensor's own derivative)."""
-        n_dense, n_columns = self.layout.n_dense, len(self.layout.sensor_fields)
-        n = self.layout.n_sensors
-        dense = np.zeros((n_dense + n_columns, n_dense))
-        sensor = np.zeros((n_dense + n_columns, n, n_columns))
-        dense[np.arange(n_dense), np.arange(n_dense)] = 1.0
-        for column in range(n_columns):
-            sensor[n_dense + column, :, column] = 1.0
-        return dense, sensor
-
-    def _fisher_run(self, theta, data, cached, window, n_events):
-        """(value, gradient (P,), (N, F), Fisher parts A, C, B) of one run, charge
-        likelihood: J from forward-mode derivatives of M, I(M) from ``information``."""
-        layout = self.layout
-        dense0, sensor0 = layout.split(theta)
-
-        def mean_of(dense, sensor):
-            return self._mean(layout.join(dense, sensor), data, cached, window, n_events)
-
-        tangent_dense, tangent_sensor = self._tangents()
-        dtype = dense0.dtype if dense0.size else sensor0.dtype
-        mean, jac = jax.vmap(
-            lambda td, ts: jax.jvp(mean_of, (dense0, sensor0), (td, ts)), out_axes=(None, 0)
-        )(jnp.asarray(tangent_dense, dtype), jnp.asarray(tangent_sensor, dtype))
-        spe_width = self.params_of(theta).spe_width
-
-        def total(m):
-            return jnp.sum(summed_charge_nll(data.charge_sum, data.hit_any, m, spe_width))
-
-        value, score = jax.value_and_grad(total)(mean)
-        weight = charge_information(mean, self.spe_width)
-        n_dense = layout.n_dense
-        jac_dense = jac[:n_dense].T  # (N, P)
-        jac_sensor = jac[n_dense:].T  # (N, F)
-        grad_dense = jac_dense.T @ score
-        grad_sensor = jac_sensor * score[:, None]
-        a = jac_dense.T @ (weight[:, None] * jac_dense)
-        c = (weight[:, None] * jac_sensor)[:, :, None] * jac_dense[:, None, :]
-        b = (weight[:, None] * jac_sensor)[:, :, None] * jac_sensor[:, None, :]
-        return value, grad_dense, grad_sensor, a, c, b
-
-    def _hessian_run(self, theta, data, cached, window, n_events):
-        """(value, gradient, observed-information parts A, C, B) of one run from
-        Hessian-vector products along the tangents of ``_tangents``."""
-        layout = self.layout
-        dense0, sensor0 = layout.split(theta)
-
-        def nll_of(dense, sensor):
-            return self._run_nll(layout.join(dense, sensor), data, cached, window, n_events)
-
-        value, (grad_dense, grad_sensor) = jax.value_and_grad(nll_of, argnums=(0, 1))(
-            dense0, sensor0
-        )
-        tangent_dense, tangent_sensor = self._tangents()
-        dtype = dense0.dtype if dense0.size else sensor0.dtype
-        gradient = jax.grad(nll_of, argnums=(0, 1))
-
-        def hvp(td, ts):
-            return jax.jvp(gradient, (dense0, sensor0), (td, ts))[1]
-
-        h_dense, h_sensor = jax.lax.map(
-            lambda pair: hvp(*pair),
-            (jnp.asarray(tangent_dense, dtype), jnp.asarray(tangent_sensor, dtype)),
-        )
-        n_dense = layout.n_dense
-        a = h_dense[:n_dense]  # (P, P)
-        c = jnp.moveaxis(h_sensor[:n_dense], 0, -1)  # (N, F, P)
-        b = jnp.moveaxis(h_sensor[n_dense:], 0, -1)  # (N, F, F)
-        return value, grad_dense, grad_sensor, a, c, b
-
-    # -- all runs -----------------------------------------------------------------------
-
-    def _each_run(self):
-        for data, cached, window, run in zip(
-            self.arrays, self.cached, self.windows, self.runs, strict=True
-        ):
-            yield data, cached, window, run.n_events
+    def _each(self, function, theta):
+        for data, cached, static in zip(self.arrays, self.cached, self.statics, strict=True):
+            yield function(theta, self.base, self.sensors, data, cached, static=static)
 
     def value(self, theta: dict) -> float:
         """-log L of all runs at ``theta``."""
-        return float(
-            sum(
-                self._run_nll_jit(theta, data, cached, window=window, n_events=n)
-                for data, cached, window, n in self._each_run()
-            )
-        )
+        return float(sum(float(v) for v in self._each(_run_nll_jit, theta)))
 
     def value_and_grad(self, theta: dict) -> tuple[float, dict]:
         """(-log L, its gradient as a ``theta``-shaped dict)."""
         total, gradient = 0.0, None
-        for data, cached, window, n in self._each_run():
-            value, grad = self._value_and_grad(theta, data, cached, window=window, n_events=n)
+        for value, grad in self._each(_value_and_grad_jit, theta):
             total += float(value)
             gradient = grad if gradient is None else jax.tree.map(jnp.add, gradient, grad)
         return total, gradient
@@ -306,11 +323,19 @@ class CalibrationProblem:
         """(-log L, gradient dense (P,), gradient per sensor (N, F), curvature): the
         expected Fisher information for the charge likelihood, the observed information
         for charge+time. Arrays in float64 numpy."""
-        parts = self._fisher_parts if self.likelihood == "charge" else self._hessian_parts
+        parts = _fisher_jit if self.likelihood == "charge" else _hessian_jit
         sums = None
-        for data, cached, window, n in self._each_run():
-            run = parts(theta, data, cached, window=window, n_events=n)
+        for run in self._each(parts, theta):
             run = [np.asarray(x, dtype=np.float64) for x in run]
             sums = run if sums is None else [s + x for s, x in zip(sums, run, strict=True)]
         value, grad_dense, grad_sensor, a, c, b = sums
         return float(value), grad_dense, grad_sensor, StructuredMatrix(a, c, b)
+
+
+@functools.partial(jax.jit, static_argnames=("shape", "config"))
+def _transport_jit(sensors, params, source, key, *, shape, config) -> Prediction:
+    positions, normals, radius, grid, near_grid = sensors
+    return expected_jit(
+        positions, normals, radius, grid, params, source, key, near_grid,
+        shape=shape, config=config,
+    )

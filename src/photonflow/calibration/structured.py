@@ -39,8 +39,26 @@ class StructuredMatrix:
         b = self.b + damping * self.b * eye
         return StructuredMatrix(a, self.c, b)
 
+    def positive(self) -> StructuredMatrix:
+        """The blocks A and B_j with their eigenvalues replaced by their magnitudes
+        (saddle-free Newton): an observed information that is negative away from the
+        optimum still gives a descent step and a meaningful size. A positive
+        semi-definite matrix (a Fisher information) is returned unchanged."""
+
+        def magnitude(blocks):
+            values, vectors = np.linalg.eigh(blocks)
+            if np.all(values >= 0):
+                return blocks
+            return np.einsum("...ik,...k,...jk->...ij", vectors, np.abs(values), vectors)
+
+        a = magnitude(self.a) if self.a.size else self.a
+        b = magnitude(self.b) if self.b.size else self.b
+        return StructuredMatrix(a, self.c, b)
+
     def _inverse_blocks(self) -> np.ndarray:
-        return np.linalg.inv(self.b) if self.b.shape[1] else self.b
+        """B_j^-1 per sensor (pseudo-inverse: a block without information inverts to 0
+        in its flat direction, and ``covariance`` reports it as infinite)."""
+        return np.linalg.pinv(self.b, hermitian=True) if self.b.shape[1] else self.b
 
     def schur(self, b_inverse: np.ndarray | None = None) -> np.ndarray:
         """S = A - sum_j C_j^T B_j^-1 C_j, (P, P)."""
@@ -53,7 +71,9 @@ class StructuredMatrix:
         s = self.schur(b_inverse)
         binv_sensor = np.einsum("nfg,ng->nf", b_inverse, sensor)
         rhs = dense - np.einsum("nfp,nf->p", self.c, binv_sensor)
-        x_dense = np.linalg.solve(s, rhs) if s.size else rhs
+        # least squares: a direction with no information (a probability saturating at 0
+        # or 1 in logit coordinates) gets no step instead of a singular solve
+        x_dense = np.linalg.lstsq(s, rhs, rcond=None)[0] if s.size else rhs
         x_sensor = np.einsum(
             "nfg,ng->nf", b_inverse, sensor - np.einsum("nfp,p->nf", self.c, x_dense)
         )
@@ -66,12 +86,13 @@ class StructuredMatrix:
         """
         b_inverse = self._inverse_blocks()
         s = self.schur(b_inverse)
-        s_inverse = np.linalg.inv(s) if s.size else s
+        s_inverse = _inverse_or_inf(s)
         # (B^-1 C S^-1 C^T B^-1)_jj per sensor, diagonal only
         binv_c = np.einsum("nfg,ngp->nfp", b_inverse, self.c)
         extra = np.einsum("nfp,pq,nfq->nf", binv_c, s_inverse, binv_c)
         sensor = np.einsum("nff->nf", b_inverse) + extra
-        return s_inverse, sensor
+        flat_block = ~(np.einsum("nff->nf", self.b) > 0)
+        return s_inverse, np.where(flat_block, np.inf, sensor)
 
     def dense_matrix(self) -> np.ndarray:
         """The full (P + N F) matrix (dense entries first, then sensor-major per-sensor
@@ -87,3 +108,22 @@ class StructuredMatrix:
             block = slice(p + j * f, p + (j + 1) * f)
             full[block, block] = self.b[j]
         return full
+
+
+def _inverse_or_inf(matrix: np.ndarray) -> np.ndarray:
+    """The inverse of a symmetric matrix; where it is singular, the pseudo-inverse with
+    inf on the diagonal of every entry that takes part in a flat direction."""
+    if not matrix.size:
+        return matrix
+    try:
+        inverse = np.linalg.inv(matrix)
+        if np.all(np.isfinite(inverse)):
+            return inverse
+    except np.linalg.LinAlgError:
+        pass
+    values, vectors = np.linalg.eigh(matrix)
+    flat = values <= 1e-12 * max(float(np.max(np.abs(values))), 1e-300)
+    inverse = np.linalg.pinv(matrix, hermitian=True)
+    involved = np.any(np.abs(vectors[:, flat]) > 1e-6, axis=1)
+    inverse[involved, involved] = np.inf
+    return inverse

@@ -68,6 +68,21 @@ def expected(
     return predict(params, source, key)
 
 
+def expected_inputs(detector: Detector, dtype=None, grid: SensorGrid | None = None) -> tuple:
+    """The detector arrays ``expected_jit`` takes: (sensor centres (N, 3) m, inward
+    normals (N, 3), disc radii (N,) m) in ``dtype`` (default JAX's default float), the
+    sensor lookup grid (``grid``, or the detector's own; None for an open medium) and
+    the near-sensor grid."""
+    dtype = jnp.zeros(()).dtype if dtype is None else dtype
+    if grid is None and detector.shape.has_walls:
+        grid = sensor_grid_for(detector)
+    arrays = (
+        jnp.asarray(x, dtype=dtype) + jnp.zeros((), dtype)  # drops weak typing
+        for x in (detector.sensor_positions, detector.sensor_normals, detector.sensor_radius)
+    )
+    return (*arrays, grid, near_grid_for(detector))
+
+
 def expected_function(
     detector: Detector,
     dtype=None,
@@ -93,13 +108,7 @@ def expected_function(
     def cast(leaf):
         return jnp.asarray(leaf, dtype=dtype) + jnp.zeros((), dtype)  # drops weak typing
 
-    if grid is None and detector.shape.has_walls:
-        grid = sensor_grid_for(detector)
-    positions, normals, radius = (
-        cast(x) for x in (detector.sensor_positions, detector.sensor_normals,
-                          detector.sensor_radius)
-    )
-    near_grid = near_grid_for(detector)
+    positions, normals, radius, grid, near_grid = expected_inputs(detector, dtype, grid)
 
     def predict(params: Params, source, key) -> Prediction:
         return expected_jit(
