@@ -413,6 +413,187 @@ def display(
     console().print(f"wrote {target} ({record.n_hits} hit sensors)", highlight=False)
 
 
+def calibration_rich_table(result) -> Table:
+    """The fit of a ``CalibrationResult`` as a rich table: parameter, fitted, 1-sigma
+    error, true value and pull (fitted - true) / error when the truth is known; a
+    per-sensor field is one row of its mean and spread over the sensors."""
+    import numpy as np
+
+    from .params import SPECS
+
+    truth = result.truth
+    pulls = result.pulls() if truth is not None else {}
+    table = Table(title=f"calibration ({result.method}, {result.likelihood} likelihood):"
+                        f" {result.message}", title_justify="left")
+    for title in ("parameter", "fitted", "error", "true", "pull"):
+        table.add_column(title, justify="left" if title == "parameter" else "right")
+    for name in result.free:
+        spec = SPECS[name]
+        unit = f" ({spec.unit})" if spec.unit else ""
+        fitted = np.atleast_1d(np.asarray(getattr(result.params, name), np.float64))
+        error = np.atleast_1d(np.asarray(getattr(result.errors, name), np.float64))
+        true = (np.atleast_1d(np.asarray(getattr(truth, name), np.float64))
+                if truth is not None else None)
+        pull = np.atleast_1d(pulls[name]) if name in pulls else None
+        if spec.per_sensor:
+            table.add_row(
+                f"{name}{unit}, {fitted.size} sensors",
+                f"mean {fitted.mean():.4g} rms {fitted.std():.3g}",
+                f"median {np.median(error):.3g}",
+                "-" if true is None else f"mean {true.mean():.4g} rms {true.std():.3g}",
+                "-" if pull is None else f"mean {np.nanmean(pull):+.2f} rms {np.nanstd(pull):.2f}",
+            )
+            continue
+        for k in range(fitted.size):
+            label = f"{name}[{k}]" if spec.size else name
+            table.add_row(
+                label + unit, f"{fitted[k]:.5g}", f"{error[k]:.3g}",
+                "-" if true is None else f"{true[k]:.5g}",
+                "-" if pull is None else f"{pull[k]:+.2f}",
+            )
+    return table
+
+
+class _FitProgress:
+    """A rich live table of a running calibration: one row per iteration with -log L
+    and the dense free values (the ``callback`` of ``calibrate``)."""
+
+    def __init__(self, live) -> None:
+        self.live = live
+        self.table: Table | None = None
+
+    def __call__(self, iteration: int, loss: float, values: dict) -> None:
+        if self.table is None:
+            self.table = Table(title="calibration progress", title_justify="left")
+            for title in ("iteration", "-log L", *values):
+                self.table.add_column(title, justify="right")
+        self.table.add_row(str(iteration), f"{loss:.3f}", *(f"{v:.5g}" for v in values.values()))
+        self.live.update(self.table)
+
+
+@command
+def calibrate(
+    files: Annotated[list[Path] | None, typer.Argument(
+        metavar="FILE...", help="Event files of calibration runs (photonflow simulate),"
+                                " one run each.")] = None,
+    out: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="Result to write (.json); with --report, the picture (.png).")] = None,
+    detector: Annotated[str | None, typer.Option(
+        "--detector", "-d", help="Preset name or configuration file (default: the files'"
+                                 " detector).")] = None,
+    free: Annotated[str | None, typer.Option(
+        help="Comma-separated Params fields to fit, e.g."
+             " absorption_length,scattering_length,efficiency.")] = None,
+    init: Annotated[Path | None, typer.Option(
+        help="Start from the parameters of this calibration result (.json) instead of"
+             " the detector's defaults.")] = None,
+    method: Annotated[str, typer.Option(help="gauss-newton, lbfgs or adam.")] = "gauss-newton",
+    likelihood: Annotated[str, typer.Option(help="charge or charge+time.")] = "charge",
+    rays: Annotated[int, typer.Option(
+        help="Rays per source for the expected mode's indirect light.")] = 4096,
+    bounces: Annotated[int | None, typer.Option(
+        help="Scatterings/reflections followed (default: the files' 'bounces').")] = None,
+    max_iterations: Annotated[int, typer.Option(
+        "--max-iterations", help="Iteration limit.")] = 50,
+    report: Annotated[Path | None, typer.Option(
+        help="Draw this calibration result (.json) to --out instead of fitting.")] = None,
+) -> None:
+    """Fit detector parameters (absorption and scattering lengths, reflectivities,
+    per-sensor efficiency and time offset, ...) to calibration runs and write the result
+    as JSON; or, with --report, draw a result: convergence, fitted versus true, and
+    per-sensor residual maps."""
+    from .errors import ConfigError
+
+    if report is not None:
+        if files:
+            raise ConfigError(f"FILE = {str(files[0])!r}: not with --report (choose one)")
+        _calibration_report(report, out, detector)
+        return
+    if out is None:
+        raise ConfigError("--out: required (the calibration result to write, .json)")
+    if free is None:
+        raise ConfigError("--free: required (comma-separated Params fields to fit)")
+    if not files:
+        raise ConfigError("FILE: give at least one event file of a calibration run")
+    _calibration_fit(files, out, detector, free, init, method, likelihood, rays, bounces,
+                     max_iterations)
+
+
+def _calibration_fit(files, out, detector, free, init, method, likelihood, rays, bounces,
+                     max_iterations) -> None:
+    """``calibrate FILE... --out``: read the runs, fit with a live display, print the
+    table, save the result."""
+    from rich.live import Live
+
+    from .calibration import LIKELIHOODS, calibrate, free_layout, load_params
+    from .calibration.methods import make_method
+    from .config import load_setup
+    from .errors import ConfigError
+    from .io import read_events
+    from .io.calibration_runs import open_runs
+    from .transport.optics import TransportConfig
+
+    if out.suffix.lower() != ".json":
+        raise ConfigError(f"--out = {str(out)!r}: the calibration result is JSON (.json)")
+    if rays < 1:
+        raise ConfigError(f"--rays = {rays}: must be >= 1")
+    if bounces is not None and bounces < 0:
+        raise ConfigError(f"--bounces = {bounces}: must be >= 0")
+    if max_iterations < 1:
+        raise ConfigError(f"--max-iterations = {max_iterations}: must be >= 1")
+    if likelihood not in LIKELIHOODS:
+        raise ConfigError(f"--likelihood = {likelihood!r}: must be one of {', '.join(LIKELIHOODS)}")
+    make_method(method)
+    if detector is None:
+        with read_events(files[0]) as first:
+            detector = first.detector.name
+    setup = load_setup(detector)
+    layout = free_layout(free, setup.detector.n_sensors)
+    start = setup.params if init is None else load_params(init)
+    with open_runs(files, setup.detector) as runs:
+        if bounces is None:
+            bounces = runs.bounces if runs.bounces is not None else TransportConfig.n_bounces
+        config = TransportConfig(n_bounces=bounces, n_rays=rays)
+        console().print(
+            f"calibrating {', '.join(layout.names)} of {setup.detector.describe()} on"
+            f" {len(files)} runs ({config.n_rays} rays, {config.n_bounces} bounces)",
+            highlight=False, soft_wrap=True,
+        )
+        with Live(console=console(), refresh_per_second=4, transient=False) as live:
+            live.update(f"compiling the expected mode of {len(files)} runs ...")
+            result = calibrate(
+                setup.detector, runs.runs, start, list(layout.names), method=method,
+                likelihood=likelihood, config=config, truth=runs.truth,
+                max_iterations=max_iterations, callback=_FitProgress(live),
+            )
+    console().print(calibration_rich_table(result))
+    path = result.save(out)
+    console().print(f"wrote {path} ({result.wall_time_s:.1f} s)", highlight=False)
+
+
+def _calibration_report(report: Path, out: Path | None, detector: str | None) -> None:
+    """``calibrate --report RESULT --out PICTURE``."""
+    from .calibration import CalibrationResult
+    from .config import load_detector
+    from .errors import ConfigError
+    from .geometry.presets import PRESETS
+    from .viz.calibration_report import plot_calibration_report
+    from .viz.geometry_plot import check_picture_path
+
+    if out is None:
+        raise ConfigError("--out: required with --report (the picture to write, e.g. .png)")
+    check_picture_path(out)
+    result = CalibrationResult.load(report)
+    name = result.detector.get("name")
+    loaded = None
+    if detector is not None:
+        loaded = load_detector(detector)
+    elif name in PRESETS:
+        loaded = load_detector(name)
+    plot_calibration_report(result, loaded, out)
+    console().print(f"wrote {out}", highlight=False)
+
+
 @command
 def demo(
     out_dir: Annotated[Path, typer.Option(

@@ -1,0 +1,172 @@
+"""``photonflow calibrate``: fit a tiny simulated run, bad input, and the report picture.
+
+One TOY_CYLINDER run is simulated once (module fixture) by the real ``simulate``
+command; the commands run in-process through typer's ``CliRunner`` (one through the
+console script, for its exit code and one-line error).
+"""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import photonflow as pf
+from photonflow.calibration import CalibrationResult
+from photonflow.cli import app
+from photonflow.io import make_event, write_events
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def invoke(*args):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def assert_one_line_error(result, *fragments):
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("error: ")
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+
+
+@pytest.fixture(scope="module")
+def run_file(tmp_path_factory):
+    """A 2-flash isotropic run in TOY_CYLINDER (3000 photons, direct light only: no
+    bounces, which keeps compilation short), written by ``simulate``."""
+    path = tmp_path_factory.mktemp("calibrate") / "iso.h5"
+    result = invoke("simulate", "--detector", "TOY_CYLINDER", "--source", "isotropic",
+                    "--position", "0.3,0,0.2", "--photons", "3000", "--events", "2",
+                    "--seed", "1", "--bounces", "0", "--out", path)
+    assert result.exit_code == 0, result.output
+    return path
+
+
+@pytest.fixture(scope="module")
+def fitted(run_file):
+    """``calibrate`` of the run's quantum efficiency (512 rays, 3 iterations; the
+    absorption length, 552 m, would be unconstrained by a 4 m tank)."""
+    out = run_file.with_name("calib.json")
+    result = invoke("calibrate", run_file, "--detector", "TOY_CYLINDER",
+                    "--free", "quantum_efficiency", "--rays", "512", "--max-iterations", "3",
+                    "--out", out)
+    assert result.exit_code == 0, result.output
+    return out, result
+
+
+def test_calibrate_writes_a_result_with_the_free_parameter(fitted, run_file):
+    out, result = fitted
+    loaded = CalibrationResult.load(out)
+    assert loaded.free == ("quantum_efficiency",)
+    assert loaded.detector["name"] == "TOY_CYLINDER"
+    assert loaded.settings["n_rays"] == 512
+    assert loaded.settings["n_bounces"] == 0  # the file's 'bounces' run setting
+    assert 2 <= len(loaded.history) <= 4  # iteration 0 and at most 3 steps
+    # the truth is the file's stored params, and the fit moved from the start
+    with pf.read_events(run_file) as events:
+        true = float(events.params.quantum_efficiency)
+    assert loaded.truth is not None
+    assert float(loaded.truth.quantum_efficiency) == pytest.approx(true)
+    assert 0 < float(loaded.errors.quantum_efficiency) < 0.5 * true
+    assert abs(loaded.pulls()["quantum_efficiency"]) < 5
+    assert loaded.runs[0]["source"] == "isotropic"
+    assert loaded.runs[0]["position_m"] == pytest.approx([0.3, 0.0, 0.2], abs=1e-6)
+    # the final table names the parameter and has a pull column
+    assert "quantum_efficiency" in result.stdout and "pull" in result.stdout
+    assert json.loads(out.read_text())["format"] == "photonflow-calibration"
+
+
+def test_report_is_a_png(fitted, tmp_path):
+    out, _ = fitted
+    picture = tmp_path / "report.png"
+    result = invoke("calibrate", "--report", out, "--out", picture)
+    assert result.exit_code == 0, result.output
+    data = picture.read_bytes()
+    assert data[:8] == PNG_SIGNATURE and len(data) > 10_000
+    assert [p.name for p in tmp_path.iterdir()] == ["report.png"]
+
+
+def test_report_of_a_per_sensor_field_draws_a_map(fitted, tmp_path):
+    """A result with a free per-sensor field gets a residual map (built from the small
+    result, with efficiency marked free and a truth)."""
+    from photonflow.geometry.presets import preset_detector
+    from photonflow.viz.calibration_report import plot_calibration_report
+
+    out, _ = fitted
+    result = CalibrationResult.load(out)
+    n = result.detector["n_sensors"]
+    params = result.params.replace(efficiency=np.linspace(0.9, 1.1, n))
+    errors = result.errors.replace(efficiency=np.full(n, 0.05))
+    import dataclasses
+
+    result = dataclasses.replace(result, params=params, errors=errors,
+                                 free=(*result.free, "efficiency"))
+    figure = plot_calibration_report(result, preset_detector("TOY_CYLINDER"))
+    sensors = [c for ax in figure.get_axes() for c in ax.collections if c.get_gid() == "sensors"]
+    assert len(sensors) == 1
+    assert np.asarray(sensors[0].get_array()) == pytest.approx(np.linspace(-0.1, 0.1, n), abs=1e-6)
+
+
+def test_unknown_free_field_is_one_line_and_writes_nothing(run_file, tmp_path):
+    out = tmp_path / "calib.json"
+    result = subprocess.run(
+        [sys.executable, "-m", "photonflow", "calibrate", str(run_file), "--detector",
+         "TOY_CYLINDER", "--free", "absorption_length,absorbtion_length", "--out", str(out)],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
+    assert "absorbtion_length" in lines[0]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_file_from_another_detector_is_refused(run_file, tmp_path):
+    sphere = pf.load_detector("TOY_SPHERE")
+    other = tmp_path / "sphere.h5"
+    write_events(other, [make_event([0, 5], [1.0, 2.0], [10.0, 12.0])], sphere,
+                 pf.default_params(sphere))
+    out = tmp_path / "calib.json"
+    result = invoke("calibrate", run_file, other, "--detector", "TOY_CYLINDER",
+                    "--free", "absorption_length", "--out", out)
+    assert_one_line_error(result, "sphere.h5", "TOY_SPHERE", "TOY_CYLINDER")
+    assert not out.exists()
+
+
+def test_file_without_run_settings_is_refused(tmp_path):
+    detector = pf.load_detector("TOY_CYLINDER")
+    bare = tmp_path / "bare.h5"
+    write_events(bare, [make_event([0, 5], [1.0, 2.0], [10.0, 12.0])], detector,
+                 pf.default_params(detector))
+    out = tmp_path / "calib.json"
+    result = invoke("calibrate", bare, "--detector", "TOY_CYLINDER",
+                    "--free", "absorption_length", "--out", out)
+    assert_one_line_error(result, "bare.h5", "run settings")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "fragment"),
+    [
+        (["--method", "newton"], "method"),
+        (["--likelihood", "time"], "--likelihood"),
+        (["--rays", "0"], "--rays"),
+    ],
+)
+def test_bad_options_are_one_line(run_file, tmp_path, args, fragment):
+    out = tmp_path / "calib.json"
+    result = invoke("calibrate", run_file, "--detector", "TOY_CYLINDER",
+                    "--free", "absorption_length", "--out", out, *args)
+    assert_one_line_error(result, fragment)
+    assert not out.exists()
+
+
+def test_report_of_a_missing_result_is_one_line(tmp_path):
+    result = invoke("calibrate", "--report", tmp_path / "none.json", "--out",
+                    tmp_path / "r.png")
+    assert_one_line_error(result, "none.json")
+    assert list(tmp_path.iterdir()) == []
