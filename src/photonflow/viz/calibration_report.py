@@ -19,6 +19,7 @@ import os
 import numpy as np
 from matplotlib.colors import TwoSlopeNorm
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from ..errors import PhotonflowError
 from ..geometry.detector import Detector
@@ -83,14 +84,18 @@ def plot_calibration_report(
     axes = parts[0].subplots(curve_rows, columns, squeeze=False).ravel()
     for ax in axes:
         ax.set_visible(False)
+    for ax in axes[:n_curves]:  # iteration axes
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
 
     iterations = np.array([step["iteration"] for step in history], dtype=np.float64)
     losses = np.array([step["loss"] for step in history], dtype=np.float64)
     ax = axes[0]
     ax.set_visible(True)
     if losses.size:
-        ax.plot(iterations, losses - np.nanmin(losses), marker="o", color="C0")
-        ax.set_yscale("symlog", linthresh=1.0)
+        excess = losses - np.nanmin(losses)
+        ax.plot(iterations, excess, marker="o", color="C0")
+        if np.nanmax(excess) > 10.0:  # large first steps: keep the last ones visible
+            ax.set_yscale("symlog", linthresh=1.0)
     ax.set_xlabel("iteration")
     ax.set_ylabel("-log L - minimum")
     ax.set_title("convergence", fontsize=10)
