@@ -29,17 +29,22 @@ from .structured import StructuredMatrix
 UNCONSTRAINED_SIGMA = 3.0
 
 
-def unconstrained_labels(layout: FreeLayout, curvature: StructuredMatrix) -> list[str]:
+def unconstrained_labels(
+    layout: FreeLayout, curvature: StructuredMatrix, expected_information: bool = True
+) -> list[str]:
     """Free entries that the curvature leaves (nearly) flat: no information at all, or
-    a 1-sigma uncertainty above ``UNCONSTRAINED_SIGMA`` (a flat direction, e.g. a global
-    efficiency degenerate with the per-sensor ones). Empty when all are constrained."""
+    (for an expected Fisher information) a 1-sigma uncertainty above
+    ``UNCONSTRAINED_SIGMA`` (a flat direction, e.g. a global efficiency degenerate with
+    the per-sensor ones). An observed information away from the optimum does not
+    measure identifiability, so for it only the first test applies. Empty when all are
+    constrained."""
     labels = layout.dense_names()
     flat = [labels[i] for i in np.flatnonzero(~(np.diag(curvature.a) > 0))]
     for column, name in enumerate(layout.sensor_fields):
         dead = np.flatnonzero(~(curvature.b[:, column, column] > 0))
         if dead.size:
             flat.append(f"{name} of {dead.size} sensors (first: {int(dead[0])})")
-    if flat:
+    if flat or not expected_information:
         return flat
     try:
         dense_var, sensor_var = curvature.covariance()
@@ -165,7 +170,7 @@ def calibrate(
 
     theta = problem.initial_theta()
     _, _, _, curvature = problem.curvature(theta)
-    flat = unconstrained_labels(layout, curvature.positive())
+    flat = unconstrained_labels(layout, curvature.positive(), likelihood == "charge")
     if flat:
         raise ConfigError(
             f"free: {', '.join(flat)}: not constrained by these runs (1-sigma beyond"

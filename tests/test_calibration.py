@@ -1,0 +1,206 @@
+"""Calibration (issue 5): linear algebra, Fisher information, the response split, result
+files, bad input, and closure on sampled-mode pseudo-data of a toy detector."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import photonflow as pf
+from photonflow.calibration import (
+    CalibrationResult,
+    calibrate,
+    charge_information,
+    load_params,
+)
+from photonflow.calibration.information import gaussian_limit
+from photonflow.calibration.objective import with_response, without_response
+from photonflow.calibration.structured import StructuredMatrix
+from photonflow.errors import ConfigError
+from photonflow.io import make_event
+from photonflow.transport.optics import TransportConfig
+from photonflow.transport.pseudo_data import sample_events
+
+OPTICS = ["absorption_length", "scattering_length", "wall_reflectivity", "sensor_reflectivity"]
+
+
+def _random_structured(rng, n=7, f=2, p=3) -> StructuredMatrix:
+    """A random symmetric positive-definite matrix with per-sensor block structure."""
+    jac_dense = rng.normal(size=(n, 4, p))
+    jac_sensor = rng.normal(size=(n, 4, f))
+    a = np.einsum("nkp,nkq->pq", jac_dense, jac_dense) + np.eye(p)
+    c = np.einsum("nkf,nkp->nfp", jac_sensor, jac_dense)
+    b = np.einsum("nkf,nkg->nfg", jac_sensor, jac_sensor) + np.eye(f)
+    return StructuredMatrix(a, c, b)
+
+
+def test_structured_solve_and_covariance_match_dense_algebra():
+    rng = np.random.default_rng(3)
+    matrix = _random_structured(rng)
+    full = matrix.dense_matrix()
+    dense_rhs, sensor_rhs = rng.normal(size=3), rng.normal(size=(7, 2))
+    x_dense, x_sensor = matrix.solve(dense_rhs, sensor_rhs)
+    expected = np.linalg.solve(full, np.concatenate([dense_rhs, sensor_rhs.ravel()]))
+    np.testing.assert_allclose(np.concatenate([x_dense, x_sensor.ravel()]), expected, rtol=1e-10)
+    inverse = np.linalg.inv(full)
+    dense_cov, sensor_var = matrix.covariance()
+    np.testing.assert_allclose(dense_cov, inverse[:3, :3], rtol=1e-10)
+    np.testing.assert_allclose(sensor_var.ravel(), np.diag(inverse)[3:], rtol=1e-10)
+
+
+@pytest.mark.parametrize("mu", [1e-3, 1e-2])
+def test_charge_information_is_counting_information_at_small_mu(mu):
+    """At small M a hit is one photoelectron: the charge adds nothing to the count, and
+    the information about M of a Poisson count is 1 / M (analytic)."""
+    value = float(charge_information(np.float32(mu), 1.0))
+    assert value * mu == pytest.approx(1.0, rel=0.02)
+
+
+def test_charge_information_approaches_the_gaussian_limit():
+    """At large M the exact (Poisson-sum) information tends to the Gaussian model's
+    m1^2 / (M (m1^2 + v1)) + 1 / (2 M^2): within 1 % at M = 90, the top of the exact
+    branch, and further away at M = 10."""
+    def relative(mu):
+        value = float(charge_information(np.float32(mu), 1.0))
+        return abs(value / gaussian_limit(mu, 1.0) - 1.0)
+
+    assert relative(90.0) < 0.01
+    assert relative(10.0) > relative(90.0)
+
+
+def test_charge_information_of_a_sharp_single_pe_charge_is_poisson():
+    """A single-p.e. width -> 0 makes the charge an exact count: I(M) = 1 / M (analytic)."""
+    for mu in (0.3, 3.0, 20.0):
+        assert float(charge_information(np.float32(mu), 0.02)) * mu == pytest.approx(1.0, rel=0.01)
+
+
+@pytest.fixture(scope="module")
+def toy():
+    detector = pf.load_detector("TOY_CYLINDER")
+    return detector, pf.default_params(detector)
+
+
+def test_response_applied_after_transport_equals_the_expected_mode(toy):
+    """Efficiency x charge, offset + times, tts in quadrature: exactly what ``expected``
+    does with the same parameters."""
+    detector, params = toy
+    rng = np.random.default_rng(1)
+    params = params.replace(
+        efficiency=rng.uniform(0.8, 1.2, detector.n_sensors),
+        time_offset=rng.normal(0.0, 1.0, detector.n_sensors),
+        tts=1.7,
+    )
+    source = pf.LaserSource(position=[0.0, 0.0, 1.0], direction=[0.0, 0.2, -1.0],
+                            opening_angle=0.4, n_photons=1e5, pulse_width=0.5)
+    config = TransportConfig(n_rays=512)
+    direct = pf.expected(detector, params, source, config=config)
+    split = with_response(pf.expected(detector, without_response(params), source,
+                                      config=config), params)
+    for name in ("charge", "time_mean", "time_sigma"):
+        # float32: the moment-matched widths are accumulated in another order (~1e-5)
+        np.testing.assert_allclose(getattr(split, name), getattr(direct, name), rtol=1e-4,
+                                   atol=1e-4)
+
+
+def _runs(detector, params, sources, seed, n_events, config):
+    return [
+        (source, list(sample_events(detector, params, source, seed + index, n_events,
+                                    config=config)))
+        for index, source in enumerate(sources)
+    ]
+
+
+def test_efficiencies_recovered_at_the_cramer_rao_bound(toy):
+    """Every sensor's efficiency (10 % spread) from three isotropic runs: pulls of unit
+    width, and RMS error within 1.2 x the Cramer-Rao bound (issue 5)."""
+    detector, params = toy
+    rng = np.random.default_rng(11)
+    truth = params.replace(efficiency=rng.normal(1.0, 0.1, detector.n_sensors))
+    config = TransportConfig(n_bounces=3, n_rays=16384)
+    sources = [pf.IsotropicSource(position=p, n_photons=2e5)
+               for p in ([0.0, 0.0, 0.0], [1.0, 0.5, 0.8], [-0.9, -0.4, -1.0])]
+    runs = _runs(detector, truth, sources, 100, 2, config)
+    result = calibrate(detector, runs, params, ["efficiency"], config=config, truth=truth)
+    assert result.converged
+    error = np.asarray(result.params.efficiency) - np.asarray(truth.efficiency)
+    bound = np.asarray(result.errors.efficiency)
+    rms_error, rms_bound = np.sqrt(np.mean(error**2)), np.sqrt(np.mean(bound**2))
+    assert rms_error <= 1.2 * rms_bound, (rms_error, rms_bound)
+    pulls = error / bound
+    assert abs(np.mean(pulls)) < 0.3
+    assert 0.8 <= np.std(pulls, ddof=1) <= 1.2
+
+
+def test_parameters_the_data_cannot_constrain_are_refused(toy):
+    detector, params = toy
+    source = pf.IsotropicSource(position=[0.0, 0.0, 0.0], n_photons=1e4)
+    config = TransportConfig(n_rays=256)
+    runs = _runs(detector, params, [source], 1, 1, config)
+    # a time offset leaves the summed charge unchanged
+    with pytest.raises(ConfigError, match="time_offset"):
+        calibrate(detector, runs, params, ["time_offset"], config=config)
+    # a global efficiency is degenerate with the per-sensor ones
+    with pytest.raises(ConfigError, match="quantum_efficiency"):
+        calibrate(detector, runs, params, ["quantum_efficiency", "efficiency"], config=config)
+    # no scattered light: the scattering length is not measured
+    clear = params.replace(scattering_length=1e9)
+    with pytest.raises(ConfigError, match="scattering_length.*not constrained"):
+        calibrate(detector, runs, clear, ["scattering_length"], config=config)
+
+
+def test_bad_runs_and_names_are_one_line_errors(toy):
+    detector, params = toy
+    source = pf.IsotropicSource(position=[0.0, 0.0, 0.0], n_photons=1e4)
+    foreign = make_event([5, detector.n_sensors + 3], [1.0, 2.0], [10.0, 11.0])
+    with pytest.raises(ConfigError, match="not a sensor of this detector"):
+        calibrate(detector, [(source, [foreign])], params, ["absorption_length"])
+    with pytest.raises(ConfigError, match="unknown parameter 'absorption'"):
+        calibrate(detector, [(source, [foreign])], params, ["absorption"])
+    with pytest.raises(ConfigError, match="method"):
+        calibrate(detector, [(source, [foreign])], params, ["efficiency"], method="newton")
+    with pytest.raises(ConfigError, match="runs: empty"):
+        calibrate(detector, [], params, ["efficiency"])
+
+
+def test_result_round_trips_through_json(toy, tmp_path):
+    detector, params = toy
+    source = pf.IsotropicSource(position=[0.3, 0.0, 0.0], n_photons=3e4)
+    config = TransportConfig(n_rays=1024)
+    truth = params.replace(efficiency=np.linspace(0.9, 1.1, detector.n_sensors))
+    runs = _runs(detector, truth, [source], 2, 1, config)
+    result = calibrate(detector, runs, params, ["efficiency"], config=config, truth=truth,
+                       max_iterations=3)
+    path = result.save(tmp_path / "calib.json")
+    loaded = CalibrationResult.load(path)
+    np.testing.assert_array_equal(loaded.params.efficiency, result.params.efficiency)
+    np.testing.assert_array_equal(loaded.errors.efficiency, result.errors.efficiency)
+    assert loaded.free == ("efficiency",) and loaded.truth is not None
+    assert loaded.history[-1]["loss"] == pytest.approx(result.loss)
+    np.testing.assert_array_equal(load_params(path).efficiency, result.params.efficiency)
+    (tmp_path / "bad.json").write_text('{"format": "something else"}')
+    with pytest.raises(ConfigError, match="not a calibration result"):
+        load_params(tmp_path / "bad.json")
+
+
+def test_fisher_gradient_equals_autodiff_gradient(toy):
+    """The gradient assembled from J^T score (Fisher path) is the autodiff gradient."""
+    from photonflow.calibration.layout import free_layout
+    from photonflow.calibration.objective import CalibrationProblem
+    from photonflow.calibration.runs import prepare_runs
+
+    detector, params = toy
+    config = TransportConfig(n_rays=512)
+    source = pf.IsotropicSource(position=[0.0, 0.4, 0.0], n_photons=5e4)
+    runs = prepare_runs(_runs(detector, params, [source], 3, 1, config), detector, "charge")
+    layout = free_layout(["absorption_length", "wall_reflectivity", "efficiency"],
+                         detector.n_sensors)
+    start = params.replace(absorption_length=30.0)
+    problem = CalibrationProblem(detector, runs, start, layout, "charge", config,
+                                 jax.random.key(0))
+    theta = problem.initial_theta()
+    _, grad_dense, grad_sensor, _ = problem.curvature(theta)
+    _, gradient = problem.value_and_grad(theta)
+    dense, sensor = layout.split(gradient)
+    np.testing.assert_allclose(grad_dense, dense, rtol=1e-3, atol=1e-3)
+    np.testing.assert_allclose(grad_sensor, sensor, rtol=1e-3, atol=1e-4)
