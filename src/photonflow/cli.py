@@ -567,7 +567,13 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
                 max_iterations=max_iterations, callback=_FitProgress(live),
             )
     console().print(calibration_rich_table(result))
-    path = result.save(out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        path = result.save(out)
+    except OSError as error:
+        raise ConfigError(
+            f"--out = {str(out)!r}: cannot write ({error.strerror or error})"
+        ) from None
     console().print(f"wrote {path} ({result.wall_time_s:.1f} s)", highlight=False)
 
 
