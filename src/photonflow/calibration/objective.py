@@ -121,11 +121,8 @@ def _params_of(theta: dict, base: Params) -> Params:
 def _prediction(theta, base, sensors, data, cached, static: _Static) -> Prediction:
     params = _params_of(theta, base)
     if cached is None:
-        positions, normals, radius, grid, near_grid = sensors
-        cached = expected_jit(
-            positions, normals, radius, grid, without_response(params), data.source,
-            data.key, near_grid, shape=static.shape, config=static.config,
-        )
+        cached = _transport_jit(sensors, without_response(params), data.source, data.key,
+                                shape=static.shape, config=static.config)
     return with_response(cached, params)
 
 
