@@ -57,6 +57,9 @@ class TransportConfig:
             ``Params``, so the rays' paths do not move when a parameter changes and
             ``Params.mie_g`` enters only through the weights; a value near the medium's
             ``mie_g`` keeps the weights' variance low.
+        specular_probes: probe rays per vertex and ray (and per ray at the source) that
+            look for light mirrored by the wall into a sensor (``indirect.py``); the
+            variance of that light falls as 1 / specular_probes.
     """
 
     n_bounces: int = 2
@@ -66,6 +69,7 @@ class TransportConfig:
     charge_threshold: float = 0.0
     batch_size: int = 1 << 17
     mie_proposal_asymmetry: float = 0.4
+    specular_probes: int = 8
 
 
 def interaction_rates(params: Params):
