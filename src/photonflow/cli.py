@@ -605,11 +605,14 @@ def demo(
     out_dir: Annotated[Path, typer.Option(
         "--out-dir", help="Folder for the demo's pictures and files.",
     )] = Path("demo_output"),
+    skip_fit: Annotated[bool, typer.Option(
+        "--skip-fit", help="Leave out the optics calibration fit (minutes on a laptop CPU).",
+    )] = False,
 ) -> None:
     """Run the main job on the embedded default detectors and write its outputs."""
-    from .demo import run_demo
+    from .demo import demo_steps, run_demo
 
-    run_demo(out_dir, console())
+    run_demo(out_dir, console(), demo_steps(with_fit=not skip_fit))
 
 
 benchmark_app = typer.Typer(help="Timing and memory benchmarks (see BENCHMARKS.md).",

@@ -213,15 +213,16 @@ def optics_calibration_step(name: str) -> Step:
     return Step(f"optics calibration in {name}", run)
 
 
-def demo_steps() -> list[Step]:
-    """The steps of the main job, in order."""
-    return [
+def demo_steps(with_fit: bool = True) -> list[Step]:
+    """The steps of the main job, in order (``with_fit=False`` leaves out the optics
+    calibration fit, the one step that takes minutes)."""
+    steps = [
         presets_step(),
         geometry_step(DEFAULT_DETECTOR),
         geometry_step(SPHERE_DETECTOR),
         calibration_run_step(DEFAULT_DETECTOR),
-        optics_calibration_step(DEFAULT_DETECTOR),
     ]
+    return steps + [optics_calibration_step(DEFAULT_DETECTOR)] if with_fit else steps
 
 
 def run_demo(
