@@ -204,3 +204,50 @@ def test_fisher_gradient_equals_autodiff_gradient(toy):
     dense, sensor = layout.split(gradient)
     np.testing.assert_allclose(grad_dense, dense, rtol=1e-3, atol=1e-3)
     np.testing.assert_allclose(grad_sensor, sensor, rtol=1e-3, atol=1e-4)
+
+
+def test_time_offsets_and_tts_recovered_with_unit_pulls(toy):
+    """Every sensor's time offset (true offsets drawn with a 1 ns spread) and the
+    transit-time spread from one pulsed isotropic source, charge+time likelihood, fit
+    started at offsets 0 and a spread 25 % high (issue 5): RMS error <= 0.1 ns, pulls
+    (fitted - true) / error of mean ~0 and width ~1 over the sensors, the spread within
+    3 sigma; the same optimum without the median start.
+
+    Direct light only (clear water, black walls and sensor glass, no bounces): the
+    expected mode's time model is then exact up to the spread of path lengths over a
+    sensor's face (up to ~0.15 ns, which it does not model; against the 2 ns pulse it
+    moves the fitted spread by well under its error), so the pulls test the fit and its
+    errors rather than the transport. 600 events (>= 400 hits per sensor) keep the test
+    short: 10^4 sampled events take minutes here; ``examples/calibration/time_offsets.py``
+    runs the 10^4-hit campaign with the full optics (docs/calibration.md)."""
+    detector, params = toy
+    rng = np.random.default_rng(21)
+    clear = params.replace(scattering_length=1e9, wall_reflectivity=0.0,
+                           sensor_reflectivity=0.0)
+    truth = clear.replace(time_offset=rng.normal(0.0, 1.0, detector.n_sensors))
+    config = TransportConfig(n_bounces=0, n_rays=256)
+    source = pf.IsotropicSource(position=[0.3, -0.2, 0.4], n_photons=3e4, pulse_width=2.0)
+    runs = _runs(detector, truth, [source], 40, 600, config)
+    hits = np.zeros(detector.n_sensors)
+    for event in runs[0][1]:
+        hits[np.unique(event.sensor_ids)] += 1
+    assert hits.min() >= 400
+    start = clear.replace(tts=1.25 * float(truth.tts))
+    result = calibrate(detector, runs, start, ["time_offset", "tts"],
+                       likelihood="charge+time", config=config, truth=truth)
+    assert result.converged, result.message
+    assert len(result.history) - 1 <= 10
+    error = np.asarray(result.params.time_offset) - np.asarray(truth.time_offset)
+    sigma = np.asarray(result.errors.time_offset)
+    assert np.sqrt(np.mean(error**2)) <= 0.1
+    pulls = error / sigma
+    assert abs(np.mean(pulls)) < 0.25, np.mean(pulls)
+    assert 0.85 <= np.std(pulls, ddof=1) <= 1.15, np.std(pulls, ddof=1)
+    tts_pull = (float(result.params.tts) - float(truth.tts)) / float(result.errors.tts)
+    assert abs(tts_pull) < 3.0, tts_pull
+    # from offsets 0 (no median start) the trust-region steps reach the same optimum
+    plain = calibrate(detector, runs, start, ["time_offset", "tts"],
+                      likelihood="charge+time", config=config, offset_start="init")
+    assert plain.converged, plain.message
+    np.testing.assert_allclose(plain.params.time_offset, result.params.time_offset,
+                               atol=0.1 * float(np.min(sigma)))

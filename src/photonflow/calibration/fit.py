@@ -33,10 +33,11 @@ def unconstrained_labels(
     layout: FreeLayout, curvature: StructuredMatrix, expected_information: bool = True
 ) -> list[str]:
     """Free entries that the curvature leaves (nearly) flat: no information at all, or
-    (for an expected Fisher information) a 1-sigma uncertainty above
-    ``UNCONSTRAINED_SIGMA`` (a flat direction, e.g. a global efficiency degenerate with
-    the per-sensor ones). An observed information away from the optimum does not
-    measure identifiability, so for it only the first test applies. Empty when all are
+    (for an expected Fisher information, which both likelihoods use) a 1-sigma
+    uncertainty above ``UNCONSTRAINED_SIGMA`` (a flat direction, e.g. a global
+    efficiency degenerate with the per-sensor ones). An observed information away from
+    the optimum does not measure identifiability, so for it
+    (``expected_information=False``) only the first test applies. Empty when all are
     constrained."""
     labels = layout.dense_names()
     flat = [labels[i] for i in np.flatnonzero(~(np.diag(curvature.a) > 0))]
@@ -122,6 +123,7 @@ def calibrate(
     step_tolerance: float = 1e-2,
     truth: Params | None = None,
     callback: Callable[[int, float, dict], None] | None = None,
+    offset_start: str = "median",
 ) -> CalibrationResult:
     """Fit the ``free`` fields of ``Params`` to calibration runs.
 
@@ -148,6 +150,11 @@ def calibrate(
         truth: the true parameters, kept in the result for pulls (pseudo-data).
         callback: called after every iteration with (iteration, loss, values), values
             the physical values of the dense free entries.
+        offset_start: with free time offsets and the charge+time likelihood, "median"
+            (default) first moves every sensor's offset by the median of its recorded
+            first-hit times minus the predicted median first-hit time
+            (``CalibrationProblem.median_time_shift``); "init" starts from
+            ``init_params`` as given.
 
     Returns:
         ``CalibrationResult`` (fitted params, errors, correlation, history).
@@ -165,12 +172,18 @@ def calibrate(
         raise ConfigError(f"max_iterations = {max_iterations}: must be >= 1")
     config = TransportConfig() if config is None else config
     key = jax.random.key(0) if key is None else key
+    if offset_start not in ("median", "init"):
+        raise ConfigError(f"offset_start = {offset_start!r}: must be 'median' or 'init'")
     prepared = prepare_runs(runs, detector, likelihood)
     problem = CalibrationProblem(detector, prepared, init_params, layout, likelihood, config, key)
 
     theta = problem.initial_theta()
+    if offset_start == "median" and likelihood == "charge+time" and "time_offset" in theta:
+        shift = problem.median_time_shift(theta)
+        theta = {**theta, "time_offset": theta["time_offset"] + jnp.asarray(
+            shift, theta["time_offset"].dtype)}
     _, _, _, curvature = problem.curvature(theta)
-    flat = unconstrained_labels(layout, curvature.positive(), likelihood == "charge")
+    flat = unconstrained_labels(layout, curvature.positive())
     if flat:
         raise ConfigError(
             f"free: {', '.join(flat)}: not constrained by these runs (1-sigma beyond"

@@ -16,10 +16,17 @@ Likelihoods (``CalibrationProblem(..., likelihood=...)``):
   mean M is the exact likelihood of the sum (``summed_charge_nll``). Its curvature is
   the expected Fisher information J^T diag(I(M)) J (``information.py``).
 - ``"charge+time"``: the per-event likelihood of charge and first-hit time
-  (``photonflow.likelihood.dense_sensor_nll``) summed over events and runs; its
-  curvature is the observed information (Hessian of -log L) from autodiff.
+  (``photonflow.likelihood.dense_sensor_nll``) summed over events and runs. Its
+  curvature is the expected Fisher information too: per event and sensor, the charge
+  part I(mu) J J^T (the per-event charge model is the summed one with M = mu) plus
+  P(hit) E[s s^T] of the first-hit time density, s its score, by quadrature over the
+  first-hit quantiles (``information.py``). When only ``time_offset`` and ``tts`` are
+  free the charge terms are constant: they are evaluated once and only the time terms
+  per step.
 
 Both curvatures are assembled in the per-sensor block structure of ``structured.py``.
+-log L is accumulated in float64 on the host from float32 terms (per sensor and event),
+so that changes of 1e-3 stay resolved in sums of 10^6 terms.
 """
 
 from __future__ import annotations
@@ -32,12 +39,24 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..geometry.detector import Detector
-from ..likelihood import charge_logpdf, dark_expectation, dense_sensor_nll, log1mexp
+from ..likelihood import (
+    charge_logpdf,
+    dark_expectation,
+    dense_sensor_nll,
+    first_hit_logpdf,
+    log1mexp,
+)
 from ..params import Params, from_unconstrained, to_unconstrained
 from ..prediction import Prediction
 from ..transport.expected import expected_inputs, expected_jit
 from ..transport.optics import TransportConfig
-from .information import charge_information, information_table
+from .information import (
+    charge_information,
+    first_hit_quantiles,
+    first_hit_scores_information,
+    information_table,
+    time_nodes,
+)
 from .layout import FreeLayout
 from .runs import RunData
 from .structured import StructuredMatrix
@@ -99,12 +118,22 @@ jax.tree_util.register_dataclass(
 )
 
 
+#: Free fields that change only the first-hit time density, not the expected charge:
+#: when nothing else is free, the charge terms of "charge+time" are constant.
+TIME_FIELDS = frozenset({"time_offset", "tts"})
+
+#: Events per block when a run's per-event terms are evaluated: bounds the memory of the
+#: charge model's photoelectron sum (``N_TERMS`` values per sensor and event).
+EVENT_BLOCK = 128
+
+
 @dataclasses.dataclass(frozen=True)
 class _Static:
     """What a compiled run function depends on statically (hashable): the free layout,
     the likelihood, the detector's shape, the transport config, the run's readout
-    window (ns) and the single-p.e. width (p.e.) of the Fisher information. Problems
-    that share it share compiled code."""
+    window (ns), the single-p.e. width (p.e.) of the Fisher information and which terms
+    of "charge+time" are evaluated ("all", "time" or "charge"). Problems that share it
+    share compiled code."""
 
     layout: FreeLayout
     likelihood: str
@@ -112,6 +141,7 @@ class _Static:
     config: TransportConfig
     window: tuple[float, float]
     spe_width: float
+    terms: str = "all"
 
 
 def _params_of(theta: dict, base: Params) -> Params:
@@ -133,23 +163,34 @@ def _mean(theta, base, sensors, data, cached, static: _Static):
     return data.n_events * (prediction.charge + dark)
 
 
-def _run_nll(theta, base, sensors, data, cached, static: _Static):
-    """-log L of one run."""
+def _run_terms(theta, base, sensors, data, cached, static: _Static):
+    """-log L terms of one run: (N,) per sensor (charge), or (E, N) per event and sensor
+    (charge+time: all terms, or only the first-hit time or only the charge terms as
+    ``static.terms`` says)."""
     if static.likelihood == "charge":
         mean = _mean(theta, base, sensors, data, cached, static)
         spe_width = _params_of(theta, base).spe_width
-        return jnp.sum(summed_charge_nll(data.charge_sum, data.hit_any, mean, spe_width))
+        return summed_charge_nll(data.charge_sum, data.hit_any, mean, spe_width)
     prediction = _prediction(theta, base, sensors, data, cached, static)
+    mu_dark = dark_expectation(_params_of(theta, base), static.window)
 
-    def event_nll(hit, charge, time):
-        return jnp.sum(
-            dense_sensor_nll(
-                prediction, hit, charge, time, prediction.dark_rate,
-                prediction.spe_width, static.window,
-            )
+    def event_terms(event):
+        hit, charge, time = event
+        if static.terms == "time":
+            log_p = first_hit_logpdf(prediction, time, mu_dark, static.window)
+            return -jnp.where(hit, log_p, 0.0)
+        return dense_sensor_nll(
+            prediction, hit, charge, time, prediction.dark_rate, prediction.spe_width,
+            static.window, use_time=static.terms == "all",
         )
 
-    return jnp.sum(jax.vmap(event_nll)(data.hit, data.charge, data.time))
+    return jax.lax.map(event_terms, (data.hit, data.charge, data.time), batch_size=EVENT_BLOCK)
+
+
+def _run_nll(theta, base, sensors, data, cached, static: _Static):
+    """(-log L of one run (float32), its terms (``_run_terms``))."""
+    terms = _run_terms(theta, base, sensors, data, cached, static)
+    return jnp.sum(terms), terms
 
 
 def _tangents(layout: FreeLayout, dtype):
@@ -165,8 +206,17 @@ def _tangents(layout: FreeLayout, dtype):
     return jnp.asarray(dense, dtype), jnp.asarray(sensor, dtype)
 
 
+def _blocks(layout: FreeLayout, information):
+    """Per-sensor information matrices (N, T, T) over the tangents of ``_tangents`` ->
+    the blocks A (P, P), C (N, F, P), B (N, F, F) of ``StructuredMatrix``: sensors'
+    terms are independent, so A is the sum over sensors."""
+    n_dense = layout.n_dense
+    a = jnp.sum(information[:, :n_dense, :n_dense], axis=0)
+    return a, information[:, n_dense:, :n_dense], information[:, n_dense:, n_dense:]
+
+
 def _fisher_run(theta, base, sensors, data, cached, static: _Static):
-    """(value, gradient (P,), (N, F), Fisher parts A, C, B) of one run, charge
+    """(terms (N,), gradient (P,), (N, F), Fisher parts A, C, B) of one run, charge
     likelihood: J from forward-mode derivatives of M, I(M) from ``information``."""
     layout = static.layout
     dense0, sensor0 = layout.split(theta)
@@ -181,49 +231,84 @@ def _fisher_run(theta, base, sensors, data, cached, static: _Static):
     spe_width = _params_of(theta, base).spe_width
 
     def total(m):
-        return jnp.sum(summed_charge_nll(data.charge_sum, data.hit_any, m, spe_width))
+        terms = summed_charge_nll(data.charge_sum, data.hit_any, m, spe_width)
+        return jnp.sum(terms), terms
 
-    value, score = jax.value_and_grad(total)(mean)
+    (_, terms), score = jax.value_and_grad(total, has_aux=True)(mean)
     weight = charge_information(mean, static.spe_width)
-    jac_dense = jac[: layout.n_dense].T  # (N, P)
-    jac_sensor = jac[layout.n_dense:].T  # (N, F)
-    grad_dense = jac_dense.T @ score
-    grad_sensor = jac_sensor * score[:, None]
-    a = jac_dense.T @ (weight[:, None] * jac_dense)
-    c = (weight[:, None] * jac_sensor)[:, :, None] * jac_dense[:, None, :]
-    b = (weight[:, None] * jac_sensor)[:, :, None] * jac_sensor[:, None, :]
-    return value, grad_dense, grad_sensor, a, c, b
+    jac = jac.T  # (N, T)
+    grad = jac * score[:, None]
+    information = weight[:, None, None] * jac[:, :, None] * jac[:, None, :]
+    a, c, b = _blocks(layout, information)
+    return terms, jnp.sum(grad[:, : layout.n_dense], axis=0), grad[:, layout.n_dense:], a, c, b
 
 
-def _hessian_run(theta, base, sensors, data, cached, static: _Static):
-    """(value, gradient, observed-information parts A, C, B) of one run from
-    Hessian-vector products along the tangents of ``_tangents``."""
+def _event_fisher_run(theta, base, sensors, data, cached, static: _Static):
+    """(terms (E, N), gradient (P,), (N, F), Fisher parts A, C, B) of one run,
+    charge+time likelihood. Per event and sensor the expected information is
+    I(mu) J J^T (charge: J = d mu / d theta, mu = signal + dark p.e. of one event) plus
+    P(hit) E[s s^T | hit] (first-hit time: s = d log p(t) / d theta at the quadrature
+    nodes of ``information.time_nodes``); times E events. The gradient is the data's."""
     layout = static.layout
     dense0, sensor0 = layout.split(theta)
+    dtype = data.charge_sum.dtype
+    x, weights = time_nodes()
+    prediction = _prediction(theta, base, sensors, data, cached, static)
+    mu_dark = dark_expectation(_params_of(theta, base), static.window)
+    nodes = first_hit_quantiles(prediction, mu_dark, static.window, x)  # (N, G) ns
+
+    def at_nodes(dense, sensor):
+        point = layout.join(dense, sensor)
+        prediction = _prediction(point, base, sensors, data, cached, static)
+        mu_dark = dark_expectation(_params_of(point, base), static.window)
+        log_p = jax.vmap(
+            lambda t: first_hit_logpdf(prediction, t, mu_dark, static.window),
+            in_axes=1, out_axes=1,
+        )(nodes)
+        return prediction.charge + mu_dark, log_p
+
+    tangent_dense, tangent_sensor = _tangents(layout, dtype)
+    (mean, _), (jac, scores) = jax.vmap(
+        lambda td, ts: jax.jvp(at_nodes, (dense0, sensor0), (td, ts)), out_axes=(None, 0)
+    )(tangent_dense, tangent_sensor)
+    jac = jac.T  # (N, T)
+    charge_part = charge_information(mean, static.spe_width)[:, None, None] * (
+        jac[:, :, None] * jac[:, None, :]
+    )
+    time_part = first_hit_scores_information(scores, jnp.asarray(weights, dtype))
+    hit_probability = -jnp.expm1(-mean)[:, None, None]
+    information = data.n_events * (charge_part + hit_probability * time_part)
+    a, c, b = _blocks(layout, information)
 
     def nll_of(dense, sensor):
         return _run_nll(layout.join(dense, sensor), base, sensors, data, cached, static)
 
-    gradient = jax.grad(nll_of, argnums=(0, 1))
-    value, (grad_dense, grad_sensor) = jax.value_and_grad(nll_of, argnums=(0, 1))(
-        dense0, sensor0
-    )
-    tangent_dense, tangent_sensor = _tangents(layout, data.charge_sum.dtype)
-    h_dense, h_sensor = jax.lax.map(
-        lambda pair: jax.jvp(gradient, (dense0, sensor0), pair)[1],
-        (tangent_dense, tangent_sensor),
-    )
-    n_dense = layout.n_dense
-    a = h_dense[:n_dense]  # (P, P)
-    c = jnp.moveaxis(h_sensor[:n_dense], 0, -1)  # (N, F, P)
-    b = jnp.moveaxis(h_sensor[n_dense:], 0, -1)  # (N, F, F)
-    return value, grad_dense, grad_sensor, a, c, b
+    (_, terms), (grad_dense, grad_sensor) = jax.value_and_grad(
+        nll_of, argnums=(0, 1), has_aux=True
+    )(dense0, sensor0)
+    return terms, grad_dense, grad_sensor, a, c, b
 
 
-_run_nll_jit = jax.jit(_run_nll, static_argnames=("static",))
-_value_and_grad_jit = jax.jit(jax.value_and_grad(_run_nll), static_argnames=("static",))
+def _first_hit_median(theta, base, sensors, data, cached, static: _Static):
+    """(N,) predicted median of every sensor's first-hit time, ns."""
+    prediction = _prediction(theta, base, sensors, data, cached, static)
+    mu_dark = dark_expectation(_params_of(theta, base), static.window)
+    zero = jnp.zeros(1, prediction.charge.dtype)
+    return first_hit_quantiles(prediction, mu_dark, static.window, zero)[:, 0]
+
+
+_terms_jit = jax.jit(_run_terms, static_argnames=("static",))
+_value_and_grad_jit = jax.jit(
+    jax.value_and_grad(_run_nll, has_aux=True), static_argnames=("static",)
+)
 _fisher_jit = jax.jit(_fisher_run, static_argnames=("static",))
-_hessian_jit = jax.jit(_hessian_run, static_argnames=("static",))
+_event_fisher_jit = jax.jit(_event_fisher_run, static_argnames=("static",))
+_median_jit = jax.jit(_first_hit_median, static_argnames=("static",))
+
+
+def _total(terms) -> float:
+    """Sum of float32 terms in float64 (host)."""
+    return float(np.sum(np.asarray(terms, dtype=np.float64)))
 
 
 class CalibrationProblem:
@@ -256,8 +341,7 @@ class CalibrationProblem:
         self.config = config
         self.base = to_unconstrained(init_params)
         spe_width = float(init_params.spe_width)
-        if likelihood == "charge":
-            information_table(spe_width)  # built here, outside jit (cached)
+        information_table(spe_width)  # built here, outside jit (cached)
         dtype = jnp.result_type(init_params.absorption_length)
         self.sensors = expected_inputs(detector, dtype)
         per_event = likelihood == "charge+time"
@@ -274,11 +358,12 @@ class CalibrationProblem:
             )
             for index, run in enumerate(runs)
         ]
+        time_only = per_event and set(layout.names) <= TIME_FIELDS
         self.statics = [
             _Static(
                 layout=layout, likelihood=likelihood, shape=detector.shape, config=config,
                 window=tuple(float(run.source.time) + w for w in config.window),
-                spe_width=spe_width,
+                spe_width=spe_width, terms="time" if time_only else "all",
             )
             for run in runs
         ]
@@ -291,6 +376,18 @@ class CalibrationProblem:
                                shape=detector.shape, config=config)
                 for data in self.arrays
             ]
+        # -log L of the terms the free values do not change (the charges when only time
+        # fields are free), evaluated once
+        self.constant = 0.0
+        if time_only:
+            theta = self.initial_theta()
+            self.constant = sum(
+                _total(_terms_jit(theta, self.base, self.sensors, data, cached,
+                                  static=dataclasses.replace(static, terms="charge")))
+                for data, cached, static in zip(
+                    self.arrays, self.cached, self.statics, strict=True
+                )
+            )
 
     def initial_theta(self) -> dict:
         """The free fields of the initial parameters, unconstrained."""
@@ -305,28 +402,45 @@ class CalibrationProblem:
             yield function(theta, self.base, self.sensors, data, cached, static=static)
 
     def value(self, theta: dict) -> float:
-        """-log L of all runs at ``theta``."""
-        return float(sum(float(v) for v in self._each(_run_nll_jit, theta)))
+        """-log L of all runs at ``theta`` (summed in float64)."""
+        return self.constant + sum(_total(t) for t in self._each(_terms_jit, theta))
 
     def value_and_grad(self, theta: dict) -> tuple[float, dict]:
         """(-log L, its gradient as a ``theta``-shaped dict)."""
-        total, gradient = 0.0, None
-        for value, grad in self._each(_value_and_grad_jit, theta):
-            total += float(value)
+        total, gradient = self.constant, None
+        for (_, terms), grad in self._each(_value_and_grad_jit, theta):
+            total += _total(terms)
             gradient = grad if gradient is None else jax.tree.map(jnp.add, gradient, grad)
         return total, gradient
 
     def curvature(self, theta: dict) -> tuple[float, np.ndarray, np.ndarray, StructuredMatrix]:
         """(-log L, gradient dense (P,), gradient per sensor (N, F), curvature): the
-        expected Fisher information for the charge likelihood, the observed information
-        for charge+time. Arrays in float64 numpy."""
-        parts = _fisher_jit if self.likelihood == "charge" else _hessian_jit
-        sums = None
-        for run in self._each(parts, theta):
+        expected Fisher information of the likelihood (charge, or charge and first-hit
+        time). Arrays in float64 numpy."""
+        parts = _fisher_jit if self.likelihood == "charge" else _event_fisher_jit
+        value, sums = self.constant, None
+        for terms, *run in self._each(parts, theta):
+            value += _total(terms)
             run = [np.asarray(x, dtype=np.float64) for x in run]
             sums = run if sums is None else [s + x for s, x in zip(sums, run, strict=True)]
-        value, grad_dense, grad_sensor, a, c, b = sums
-        return float(value), grad_dense, grad_sensor, StructuredMatrix(a, c, b)
+        grad_dense, grad_sensor, a, c, b = sums
+        return value, grad_dense, grad_sensor, StructuredMatrix(a, c, b)
+
+    def median_time_shift(self, theta: dict) -> np.ndarray:
+        """(N,) ns: per sensor, the median over all runs' hits of (recorded first-hit time
+        - the predicted median first-hit time at ``theta``); 0 for a sensor never hit.
+        The time offset only shifts the first-hit distribution (up to the few dark
+        hits), so adding this to the offsets is a consistent starting estimate.
+        Needs the charge+time likelihood (per-event times)."""
+        residuals = []
+        for run, median in zip(self.runs, self._each(_median_jit, theta), strict=True):
+            median = np.asarray(median, np.float64)
+            residuals.append(np.where(run.hit, run.time - median[None, :], np.nan))
+        residuals = np.concatenate(residuals, axis=0)
+        hit = np.any(np.isfinite(residuals), axis=0)
+        shift = np.zeros(residuals.shape[1])
+        shift[hit] = np.nanmedian(residuals[:, hit], axis=0)
+        return shift
 
 
 @functools.partial(jax.jit, static_argnames=("shape", "config"))

@@ -40,10 +40,9 @@ class StructuredMatrix:
         return StructuredMatrix(a, self.c, b)
 
     def positive(self) -> StructuredMatrix:
-        """The blocks A and B_j with their eigenvalues replaced by their magnitudes
-        (saddle-free Newton): an observed information that is negative away from the
-        optimum still gives a descent step and a meaningful size. A positive
-        semi-definite matrix (a Fisher information) is returned unchanged."""
+        """The blocks A and B_j with their eigenvalues replaced by their magnitudes: a
+        Fisher information (positive semi-definite; returned unchanged) that rounding
+        has made slightly indefinite still gives a descent step and a meaningful size."""
 
         def magnitude(blocks):
             values, vectors = np.linalg.eigh(blocks)
@@ -54,6 +53,14 @@ class StructuredMatrix:
         a = magnitude(self.a) if self.a.size else self.a
         b = magnitude(self.b) if self.b.size else self.b
         return StructuredMatrix(a, self.c, b)
+
+    def multiply(self, dense: np.ndarray, sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """M x for x = (dense (P,), sensor (N, F)); returned as ((P,), (N, F))."""
+        out_dense = self.a @ dense + np.einsum("nfp,nf->p", self.c, sensor)
+        out_sensor = np.einsum("nfp,p->nf", self.c, dense) + np.einsum(
+            "nfg,ng->nf", self.b, sensor
+        )
+        return out_dense, out_sensor
 
     def _inverse_blocks(self) -> np.ndarray:
         """B_j^-1 per sensor (pseudo-inverse: a block without information inverts to 0
