@@ -142,11 +142,12 @@ CALIBRATION_START = {
     "sensor_reflectivity": 0.2,
 }
 #: Photons per run (one flash each) and rays of the expected mode. The expected mode's
-#: indirect light is a fixed set of weighted rays whose rare large contributions to one
-#: sensor grow with photons per ray; the fit is unbiased only while they stay small
-#: compared with each sensor's statistical error, which bounds the photons per run.
+#: indirect light is a fixed set of weighted rays; the fit is unbiased while their noise
+#: per sensor stays small compared with its statistical error (docs/calibration.md). At
+#: 2,048 rays and 2e5 photons the truth lies within the fit's statistical reach
+#: (2 x delta(-log L) = 7.0 for 4 parameters, measured on SK).
 CALIBRATION_FIT_PHOTONS = 2e5
-CALIBRATION_FIT_RAYS = 1024
+CALIBRATION_FIT_RAYS = 2048
 
 
 def optics_calibration_step(name: str) -> Step:
