@@ -3,10 +3,12 @@
 ``calibrate(detector, runs, init_params, free=[...])`` fits any subset of ``Params``
 (optical scalars and per-sensor arrays) jointly by Fisher scoring on the expected
 mode's exact likelihood; ``CalibrationResult`` holds the fit with Cramer-Rao errors and
-saves to JSON; ``load_params`` reads the fitted parameters back. See
+saves to JSON; ``load_params`` reads the fitted parameters back;
+``sequential_calibration`` is the conventional one-block-at-a-time baseline. See
 ``docs/calibration.md``.
 """
 
+from .conventional import SEQUENTIAL_FIELDS, sequential_calibration
 from .fit import UNCONSTRAINED_SIGMA, calibrate, unconstrained_labels
 from .information import charge_information
 from .layout import RESPONSE_FIELDS, FreeLayout, free_layout
@@ -19,6 +21,7 @@ __all__ = [
     "LIKELIHOODS",
     "METHODS",
     "RESPONSE_FIELDS",
+    "SEQUENTIAL_FIELDS",
     "UNCONSTRAINED_SIGMA",
     "Adam",
     "CalibrationResult",
@@ -30,5 +33,6 @@ __all__ = [
     "free_layout",
     "load_params",
     "prepare_runs",
+    "sequential_calibration",
     "unconstrained_labels",
 ]

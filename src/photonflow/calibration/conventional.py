@@ -1,0 +1,607 @@
+"""The conventional sequential calibration: the baseline the joint fit is measured against.
+
+Detector calibrations are traditionally done one block at a time, each block with its
+own dedicated method and the other parameters frozen at their current values:
+
+a. **relative sensor efficiency** from a central isotropic source: each sensor's charge
+   divided by its geometric expectation for direct light (the photons x the fraction
+   emitted towards its disc (exact solid angle) x quantum efficiency x angular
+   acceptance x the direct-light attenuation exp(-d / L_att) at the current lengths),
+   normalised to the mean of the starting efficiencies (a relative table);
+b. **attenuation length** from the slope of log(charge / (geometric expectation x
+   efficiency)) versus source-sensor distance d, a weighted straight line through the
+   isotropic runs other than the central one (whose charges made the efficiencies),
+   one intercept per run: -slope = 1 / L_att = 1 / L_abs + 1 / L_scat + 1 / L_mie, so
+   L_abs follows from the current scattering lengths;
+c. **every other optical parameter** (scattering length, reflectivities, ...) by a
+   one-dimensional scan of the full expected-mode likelihood of all runs
+   (``objective.CalibrationProblem`` with that one field free), the others frozen: a
+   coarse grid, then a parabola through a finer one, whose curvature gives the error;
+d. the blocks repeated a few times, each starting from the others' latest values.
+
+Blocks a and b treat the charge as direct light only (the geometric acceptance knows
+nothing of scattered or reflected light), which is how these methods are used, and no
+block sees the correlations between the blocks. Scattered and reflected light raise the
+charge of far sensors relative to near ones, so the slope gives too long an effective
+attenuation length, and the efficiencies absorb the indirect light's pattern over the
+detector. ``indirect="subtract"`` is the Monte Carlo-corrected variant: before blocks a
+and b, the indirect light the expected mode predicts at the current values is
+subtracted. Units: m, ns, p.e.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import ConfigError
+from ..geometry.detector import Detector
+from ..likelihood import dark_expectation
+from ..params import Params, to_unconstrained, validate_params
+from ..sources import IsotropicSource, source_kind
+from ..spe import single_pe_moments
+from ..transport.direct import direct_light
+from ..transport.expected import expected
+from ..transport.optics import TransportConfig
+from .layout import free_layout
+from .objective import CalibrationProblem
+from .result import CalibrationResult
+from .runs import RunData, prepare_runs
+
+#: Scalar fields the sequential method fits by a one-dimensional likelihood scan (block c).
+SCAN_FIELDS = (
+    "scattering_length",
+    "mie_length",
+    "mie_g",
+    "wall_reflectivity",
+    "wall_specular_fraction",
+    "sensor_reflectivity",
+    "quantum_efficiency",
+)
+
+#: Every field ``sequential_calibration`` can fit.
+SEQUENTIAL_FIELDS = ("absorption_length", "efficiency", *SCAN_FIELDS)
+
+#: How blocks a and b treat scattered and reflected light (``sequential_calibration``).
+INDIRECT = ("ignore", "subtract")
+
+#: Default step of the coarse scan grid in unconstrained units (log for lengths, logit
+#: for probabilities, atanh for mie_g).
+SCAN_STEP = 0.25
+
+#: An absorption length from a slope that leaves no absorption (1 / L_att at or below
+#: 1 / L_scat + 1 / L_mie) is set to this, m.
+LONGEST_ABSORPTION = 1e6
+
+
+@dataclasses.dataclass(frozen=True)
+class DirectRun:
+    """An isotropic run seen as direct light only (blocks a and b).
+
+    Attributes:
+        index: the run's position in the list of runs.
+        charge: (N,) photoelectrons summed over the run's events, dark noise subtracted
+            (the summed charge divided by the mean single-p.e. charge), p.e.
+        variance: (N,) variance of ``charge`` (Poisson count x single-p.e. spread), p.e.^2,
+            estimated from the observed charge.
+        geometry: (N,) geometric expectation of direct light summed over the run's
+            events: photons x emitted fraction towards the disc x quantum efficiency x
+            angular acceptance (no attenuation, efficiency 1), p.e.
+        distance: (N,) source-to-sensor-centre distance, m.
+        indirect: (N,) scattered and reflected light summed over the run's events, per
+            unit efficiency, p.e.: zero (the textbook method) or the expected mode's
+            prediction at the current values (``indirect="subtract"``).
+    """
+
+    index: int
+    charge: np.ndarray
+    variance: np.ndarray
+    geometry: np.ndarray
+    distance: np.ndarray
+    indirect: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class ScanResult:
+    """Outcome of a one-dimensional likelihood scan (unconstrained coordinates).
+
+    Attributes:
+        value: position of the minimum.
+        sigma: 1-sigma error from the parabola's curvature (inf if it is not convex).
+        n_evaluations: likelihood evaluations used.
+        at_edge: the minimum ran into the scan's extension limit.
+    """
+
+    value: float
+    sigma: float
+    n_evaluations: int
+    at_edge: bool
+
+
+def attenuation_inverse(params: Params) -> float:
+    """1 / L_att of direct light, 1/m: 1 / L_abs + 1 / L_scat + 1 / L_mie."""
+    return float(
+        1.0 / params.absorption_length + 1.0 / params.scattering_length + 1.0 / params.mie_length
+    )
+
+
+def direct_run(detector: Detector, params: Params, run: RunData, index: int,
+               window: tuple[float, float]) -> DirectRun:
+    """Reduce an isotropic run to direct-light terms at ``params`` (whose quantum
+    efficiency, angular acceptance, single-p.e. width and dark rate are used; lengths and
+    efficiencies are not). ``window`` is the readout window in ns relative to the source
+    time."""
+    source = run.source
+    geometric = params.replace(
+        absorption_length=math.inf, scattering_length=math.inf, mie_length=math.inf,
+        efficiency=1.0,
+    )
+    mu, _ = direct_light(detector, geometric, source)
+    distance = np.linalg.norm(
+        np.asarray(detector.sensor_positions, np.float64)
+        - np.asarray(source.position, np.float64), axis=1,
+    )
+    mean, variance = (float(x) for x in single_pe_moments(float(params.spe_width)))
+    start = float(np.asarray(source.time))
+    dark = float(dark_expectation(params, (start + window[0], start + window[1])))
+    n_events = run.n_events
+    charge = np.asarray(run.charge_sum, np.float64) / mean - n_events * dark
+    count_variance = np.maximum(charge, 0.0) * (1.0 + variance / mean**2)
+    return DirectRun(
+        index=index,
+        charge=charge,
+        variance=count_variance,
+        geometry=n_events * np.asarray(mu, np.float64),
+        distance=distance,
+        indirect=np.zeros_like(distance),
+    )
+
+
+def predicted_indirect(detector: Detector, params: Params, run: RunData, config: TransportConfig,
+                       key) -> np.ndarray:
+    """(N,) scattered and reflected light of a run at ``params``, per unit efficiency,
+    summed over its events, p.e.: the expected mode's charge minus its direct light
+    (``direct.direct_light``), both with efficiency 1."""
+    nominal = params.replace(efficiency=1.0)
+    total = expected(detector, nominal, run.source, config=config, key=key).charge
+    direct, _ = direct_light(detector, nominal, run.source)
+    return run.n_events * np.maximum(np.asarray(total, np.float64)
+                                     - np.asarray(direct, np.float64), 0.0)
+
+
+def central_efficiencies(run: DirectRun, inverse_length: float, current: np.ndarray,
+                         reference_mean: float, min_charge: float) -> tuple:
+    """Block a: relative efficiencies from a central isotropic run.
+
+    efficiency_j = charge_j / (geometry_j exp(-d_j / L_att) + indirect_j) (the indirect
+    light zero in the textbook method), normalised so that the
+    sensors measured have the mean ``reference_mean`` (among the same sensors);
+    ``inverse_length`` is 1 / L_att in 1/m. Sensors whose predicted direct light (at the
+    reference efficiency) is below ``min_charge`` p.e., or that saw nothing, keep their
+    ``current`` value.
+
+    Returns:
+        (efficiency (N,), error (N,) from the charge's variance (0 where not measured),
+        measured mask (N,)).
+    """
+    direct = run.geometry * np.exp(-run.distance * inverse_length)
+    expected = direct + run.indirect
+    measured = (direct * reference_mean >= min_charge) & (run.charge > 0)
+    if not np.any(measured):
+        raise ConfigError("efficiency: the central source gives no sensor enough charge")
+    raw = np.where(measured, run.charge / np.where(measured, expected, 1.0), 0.0)
+    scale = reference_mean / np.mean(raw[measured])
+    efficiency = np.where(measured, raw * scale, current)
+    relative = np.sqrt(run.variance / np.where(measured, run.charge, 1.0) ** 2)
+    error = np.where(measured, efficiency * relative, 0.0)
+    return efficiency, error, measured
+
+
+def attenuation_slope(runs: Sequence[DirectRun], efficiency: np.ndarray, inverse_length: float,
+                      min_charge: float, efficiency_error: np.ndarray | None = None
+                      ) -> tuple[float, float, int]:
+    """Block b: 1 / L_att (1/m) and its error from the slope of log charge vs distance.
+
+    For every run r and sensor j whose predicted direct light at the mean efficiency and
+    the current ``inverse_length`` (1/m) is at least ``min_charge`` p.e. (selected on
+    the geometry alone: a cut on the observed charge, or on the sensor's own estimated
+    efficiency, would favour upward fluctuations far away and flatten the slope),
+    y = log(direct / (geometry x efficiency)) + var / (2 direct^2) (the second-order
+    correction of the log's bias), direct = charge - efficiency x indirect (the indirect
+    light zero in the textbook method), is fitted by weighted least squares to
+    c_r - d / L_att (one intercept per run, a common slope). var(y) = var(charge) /
+    direct^2 + (efficiency_error / efficiency)^2, var(charge) from the fitted line's own
+    charge (two re-weightings).
+
+    Returns:
+        (1 / L_att in 1/m, its 1-sigma error in 1/m, number of points).
+    """
+    if efficiency_error is None:
+        efficiency_error = np.zeros_like(efficiency)
+    relative = (efficiency_error / efficiency) ** 2
+    typical = float(np.mean(efficiency))
+    rows, ys, charges, backgrounds, factors, extra, run_of = [], [], [], [], [], [], []
+    for column, run in enumerate(runs):
+        expected = run.geometry * efficiency
+        predicted = run.geometry * typical * np.exp(-run.distance * inverse_length)
+        direct = run.charge - efficiency * run.indirect
+        use = (predicted >= min_charge) & (direct > 0)
+        q = direct[use]
+        ys.append(np.log(q / expected[use]) + run.variance[use] / (2.0 * q**2))
+        rows.append(run.distance[use])
+        charges.append(q)
+        backgrounds.append((efficiency * run.indirect)[use])
+        factors.append(run.variance[use] / run.charge[use])  # var(charge) per p.e.
+        extra.append(relative[use])
+        run_of.append(np.full(q.size, column))
+    distance, y = np.concatenate(rows), np.concatenate(ys)
+    run_of = np.concatenate(run_of)
+    charge, background = np.concatenate(charges), np.concatenate(backgrounds)
+    factor, extra = np.concatenate(factors), np.concatenate(extra)
+    if distance.size < len(runs) + 2:
+        raise ConfigError(
+            f"absorption_length: {distance.size} sensors with >= {min_charge:g} p.e. in the"
+            " isotropic runs: too few for the attenuation slope"
+        )
+    design = np.zeros((distance.size, len(runs) + 1))
+    design[np.arange(distance.size), run_of] = 1.0
+    design[:, -1] = -distance
+    model = charge
+    for _ in range(3):
+        # var(log direct) = var(charge) / D^2, var(charge) = (D + indirect) x factor
+        weight = 1.0 / ((model + background) * factor / model**2 + extra)
+        normal = design.T @ (weight[:, None] * design)
+        solution = np.linalg.solve(normal, design.T @ (weight * y))
+        fitted = design @ solution
+        model = charge * np.exp(fitted - y)  # the line's direct charge
+    covariance = np.linalg.inv(normal)
+    return float(solution[-1]), float(np.sqrt(covariance[-1, -1])), int(distance.size)
+
+
+def absorption_from_attenuation(inverse_length: float, error: float, params: Params) -> tuple:
+    """L_abs (m) and its error (m) from 1 / L_att (1/m, with error) at the current
+    scattering lengths of ``params``: 1 / L_abs = 1 / L_att - 1 / L_scat - 1 / L_mie
+    (``LONGEST_ABSORPTION`` when that is not positive)."""
+    scattering = float(1.0 / params.scattering_length + 1.0 / params.mie_length)
+    inverse_absorption = inverse_length - scattering
+    if inverse_absorption <= 1.0 / LONGEST_ABSORPTION:
+        return LONGEST_ABSORPTION, math.inf
+    length = 1.0 / inverse_absorption
+    return length, length**2 * error
+
+
+def _parabola(u: np.ndarray, f: np.ndarray) -> tuple[float, float]:
+    """(vertex, second derivative) of the parabola through three points."""
+    a, b, _ = np.polyfit(u - u[1], f - f[1], 2)
+    curvature = 2.0 * a
+    if curvature <= 0:
+        return float(u[np.argmin(f)]), 0.0
+    return float(u[1] - b / (2.0 * a)), float(curvature)
+
+
+def scan_minimum(function: Callable[[float], float], start: float, step: float = SCAN_STEP,
+                 max_extensions: int = 8) -> ScanResult:
+    """Minimise a 1-D function (-log L in unconstrained coordinates) by scanning.
+
+    A coarse grid of five points ``start + k step`` (k = -2..2), extended by ``step`` while
+    the minimum lies on an edge (at most ``max_extensions`` times); the parabola through
+    the lowest point and its neighbours; then three points at a quarter step around that
+    vertex and their parabola, whose vertex is the result and whose curvature gives the
+    1-sigma error (-log L rises by 1/2).
+    """
+    points = {start + k * step: function(start + k * step) for k in range(-2, 3)}
+    at_edge = False
+    for _ in range(max_extensions):
+        grid = sorted(points)
+        best = min(grid, key=points.get)
+        if best == grid[0]:
+            points[grid[0] - step] = function(grid[0] - step)
+        elif best == grid[-1]:
+            points[grid[-1] + step] = function(grid[-1] + step)
+        else:
+            break
+    else:
+        at_edge = True
+    grid = sorted(points)
+    index = int(np.clip(np.argmin([points[u] for u in grid]), 1, len(grid) - 2))
+    around = np.array(grid[index - 1:index + 2])
+    vertex, _ = _parabola(around, np.array([points[u] for u in around]))
+    vertex = float(np.clip(vertex, around[0], around[-1]))
+    fine = vertex + 0.25 * step * np.array([-1.0, 0.0, 1.0])
+    values = np.array([function(u) for u in fine])
+    value, curvature = _parabola(fine, values)
+    value = float(np.clip(value, fine[0] - step, fine[-1] + step))
+    sigma = 1.0 / math.sqrt(curvature) if curvature > 0 else math.inf
+    return ScanResult(value, sigma, len(points) + 3, at_edge)
+
+
+def _physical(name: str, unconstrained: float, sigma: float, params: Params) -> tuple:
+    """(value, error) of field ``name`` in physical units from its unconstrained value
+    and error, by the derivative of the inverse transform."""
+    base = to_unconstrained(params)
+    moved = dataclasses.replace(base, **{name: jnp.asarray(unconstrained, base.efficiency.dtype)})
+
+    def value_of(u):
+        return getattr(Params.from_unconstrained(dataclasses.replace(moved, **{name: u})), name)
+
+    point = getattr(moved, name)
+    value, slope = jax.jvp(value_of, (point,), (jnp.ones_like(point),))
+    return float(value), abs(float(slope)) * sigma
+
+
+def _central_index(detector: Detector, runs: Sequence[RunData], isotropic: list[int],
+                   central_run: int | None) -> int:
+    """The run for block a: ``central_run``, else the isotropic run nearest the centre of
+    the sensor array."""
+    if central_run is not None:
+        if central_run not in isotropic:
+            raise ConfigError(f"central_run = {central_run}: not an isotropic run")
+        return central_run
+    centre = np.mean(np.asarray(detector.sensor_positions, np.float64), axis=0)
+    return min(isotropic, key=lambda i: float(
+        np.linalg.norm(np.asarray(runs[i].source.position, np.float64) - centre)))
+
+
+def _check_free(free, n_sensors: int) -> tuple[str, ...]:
+    """The free field names in ``Params`` order; one-line error for any this method does
+    not fit."""
+    layout = free_layout(free, n_sensors)
+    bad = [name for name in layout.names if name not in SEQUENTIAL_FIELDS]
+    if bad:
+        raise ConfigError(
+            f"free: {', '.join(bad)}: the sequential calibration fits only"
+            f" {', '.join(SEQUENTIAL_FIELDS)}"
+        )
+    return layout.names
+
+
+class _Scanner:
+    """-log L of all runs (charge likelihood) as a function of one field, the others at
+    ``params``; a new problem per scan, compiled code shared across them."""
+
+    def __init__(self, detector, prepared, config, key):
+        self.detector, self.prepared, self.config, self.key = detector, prepared, config, key
+        self.evaluations = 0
+
+    def problem(self, params: Params, name: str) -> CalibrationProblem:
+        layout = free_layout([name], self.detector.n_sensors)
+        return CalibrationProblem(self.detector, self.prepared, params, layout, "charge",
+                                  self.config, self.key)
+
+    def loss(self, params: Params) -> float:
+        """-log L at ``params``."""
+        problem = self.problem(params, "absorption_length")
+        self.evaluations += 1
+        return problem.value(problem.initial_theta())
+
+    def scan(self, params: Params, name: str, step: float) -> ScanResult:
+        problem = self.problem(params, name)
+        dtype = problem.initial_theta()[name].dtype
+
+        def function(u: float) -> float:
+            self.evaluations += 1
+            return problem.value({name: jnp.asarray(u, dtype)})
+
+        return scan_minimum(function, float(problem.initial_theta()[name]), step)
+
+
+def sequential_calibration(
+    detector: Detector,
+    runs,
+    init_params: Params,
+    free: Sequence[str] | str,
+    *,
+    config: TransportConfig | None = None,
+    key=None,
+    n_iterations: int = 3,
+    indirect: str = "ignore",
+    central_run: int | None = None,
+    min_charge: float = 20.0,
+    scan_step: float = SCAN_STEP,
+    step_tolerance: float = 0.1,
+    truth: Params | None = None,
+    callback: Callable[[int, float, dict], None] | None = None,
+) -> CalibrationResult:
+    """Calibrate the ``free`` fields the conventional way: one block at a time, iterated.
+
+    Blocks, in this order in every iteration (module docstring): ``efficiency`` from the
+    central isotropic run corrected by its direct-light geometric acceptance;
+    ``absorption_length`` from the slope of log charge versus distance over the other
+    isotropic runs; every other free field (``SCAN_FIELDS``) by a one-dimensional scan
+    of the expected-mode charge likelihood of all runs. Each block uses the others'
+    current values.
+
+    Args:
+        detector: the detector the runs were recorded in.
+        runs: (source, events) pairs or ``CalibrationRun``s, as for ``calibrate``;
+            ``efficiency`` needs an isotropic run near the centre, ``absorption_length``
+            isotropic runs that span a range of distances.
+        init_params: starting values; fields not in ``free`` stay at them.
+        free: fields to fit, a subset of ``SEQUENTIAL_FIELDS``.
+        config: expected-mode settings for the scans (rays, bounces, readout window in
+            ns relative to the source time, also used for the dark-noise subtraction).
+        key: ``jax.random`` key of the expected mode's rays (default ``key(0)``).
+        n_iterations: passes through the blocks (at most).
+        indirect: "ignore" (the textbook method: blocks a and b take all charge for
+            direct light) or "subtract" (before blocks a and b of every pass, the
+            scattered and reflected light the expected mode predicts at the current
+            values is subtracted: the Monte Carlo-corrected variant).
+        central_run: index of the run for the efficiencies (default: the isotropic run
+            nearest the centre of the sensor array).
+        min_charge: sensors whose predicted direct light in a run (at the current values)
+            is below this (p.e., summed over the run's events) are not used by the
+            efficiency and slope blocks.
+        scan_step: coarse-grid step of the scans, unconstrained units.
+        step_tolerance: stop early when a pass moves every free value by less than this
+            many of its errors.
+        truth: the true parameters, kept for pulls (pseudo-data).
+        callback: called after every pass with (iteration, -log L, values of the free
+            scalars).
+
+    Returns:
+        ``CalibrationResult`` with ``method = "sequential"``. Its errors are each block's
+        own (conditional on the other blocks; efficiencies from counting statistics of
+        the central run, L_abs from the slope fit, scanned fields from the scan's
+        curvature); the correlation matrix is NaN off the diagonal (not estimated).
+        ``settings["likelihood_evaluations"]`` counts the evaluations of -log L of all
+        runs (one expected-mode transport per run each).
+
+    Raises:
+        ConfigError: bad runs, parameters or names, a field this method does not fit,
+            no isotropic run where one is needed (one line each).
+    """
+    started = time.perf_counter()
+    validate_params(init_params, detector.n_sensors)
+    names = _check_free(free, detector.n_sensors)
+    if int(n_iterations) < 1:
+        raise ConfigError(f"n_iterations = {n_iterations}: must be >= 1")
+    if indirect not in INDIRECT:
+        raise ConfigError(f"indirect = {indirect!r}: must be one of {', '.join(INDIRECT)}")
+    config = TransportConfig() if config is None else config
+    key = jax.random.key(0) if key is None else key
+    prepared = prepare_runs(runs, detector, "charge")
+    isotropic = [i for i, run in enumerate(prepared) if isinstance(run.source, IsotropicSource)]
+    if ("efficiency" in names or "absorption_length" in names) and not isotropic:
+        raise ConfigError("efficiency and absorption_length need isotropic runs; none given")
+    scanned = [name for name in names if name in SCAN_FIELDS]
+    scanner = _Scanner(detector, prepared, config, key)
+
+    direct = [direct_run(detector, init_params, prepared[i], i, config.window) for i in isotropic]
+    central = None
+    if "efficiency" in names:
+        index = _central_index(detector, prepared, isotropic, central_run)
+        central = direct[isotropic.index(index)]
+    if "absorption_length" in names and len(direct) < 1 + (central is not None):
+        raise ConfigError(
+            "absorption_length: needs an isotropic run besides the central one the"
+            " efficiencies come from (the slope of one run's own efficiency table is no"
+            " measurement)"
+        )
+    reference_mean = float(np.mean(np.asarray(init_params.efficiency, np.float64)))
+
+    params = init_params
+    errors = {name: np.zeros_like(np.asarray(getattr(init_params, name), np.float64))
+              for name in names}
+    history = [{"iteration": 0, "loss": scanner.loss(params), "time_s": 0.0,
+                "values": _scalar_values(params, names)}]
+    converged, message = False, f"stopped after n_iterations = {n_iterations}"
+    for iteration in range(1, int(n_iterations) + 1):
+        before = params
+        if indirect == "subtract" and direct and ("efficiency" in names
+                                                  or "absorption_length" in names):
+            direct = [
+                dataclasses.replace(run, indirect=predicted_indirect(
+                    detector, params, prepared[run.index], config,
+                    jax.random.fold_in(key, run.index)))
+                for run in direct
+            ]
+            if central is not None:
+                central = direct[isotropic.index(central.index)]
+        if central is not None:
+            efficiency, error, _ = central_efficiencies(
+                central, attenuation_inverse(params), np.asarray(params.efficiency, np.float64),
+                reference_mean, min_charge,
+            )
+            params = params.replace(efficiency=efficiency)
+            errors["efficiency"] = error
+        if "absorption_length" in names:
+            slope_runs = [run for run in direct if central is None or run.index != central.index]
+            inverse, error, _ = attenuation_slope(
+                slope_runs, np.asarray(params.efficiency, np.float64),
+                attenuation_inverse(params), min_charge, errors.get("efficiency"),
+            )
+            length, errors["absorption_length"] = absorption_from_attenuation(
+                inverse, error, params
+            )
+            params = params.replace(absorption_length=length)
+        for name in scanned:
+            result = scanner.scan(params, name, scan_step)
+            value, errors[name] = _physical(name, result.value, result.sigma, params)
+            params = params.replace(**{name: value})
+        loss = scanner.loss(params)
+        values = _scalar_values(params, names)
+        history.append({"iteration": iteration, "loss": loss,
+                        "time_s": time.perf_counter() - started, "values": values})
+        if callback is not None:
+            callback(iteration, loss, values)
+        moved = _largest_move(before, params, errors, names)
+        if moved < step_tolerance:
+            converged = True
+            message = (f"converged: the last pass moved every free value by {moved:.2g}"
+                       f" < {step_tolerance:g} of its error")
+            break
+
+    error_params = Params.from_dict({
+        name: errors.get(name, np.zeros_like(np.asarray(value, np.float64)))
+        for name, value in params.to_dict().items()
+    })
+    dense = [name for name in names if name != "efficiency"]
+    correlation = np.full((len(dense), len(dense)), np.nan)
+    np.fill_diagonal(correlation, 1.0)
+    return CalibrationResult(
+        params=params,
+        errors=error_params,
+        correlation=correlation,
+        correlation_names=tuple(dense),
+        history=tuple(history),
+        free=names,
+        method="sequential",
+        likelihood="charge",
+        converged=converged,
+        message=message,
+        loss=history[-1]["loss"],
+        settings={
+            "n_rays": config.n_rays,
+            "n_bounces": config.n_bounces,
+            "window_ns": list(config.window),
+            "n_iterations": int(n_iterations),
+            "indirect": indirect,
+            "min_charge_pe": float(min_charge),
+            "scan_step": float(scan_step),
+            "likelihood_evaluations": scanner.evaluations,
+        },
+        runs=_run_provenance(prepared),
+        detector={"name": detector.name, "n_sensors": detector.n_sensors},
+        truth=truth,
+        wall_time_s=time.perf_counter() - started,
+    )
+
+
+def _run_provenance(runs: Sequence[RunData]) -> tuple[dict, ...]:
+    """Per run: label, source kind, position (m), photons per flash, events."""
+    return tuple(
+        {
+            "label": run.label,
+            "source": source_kind(run.source),
+            "position_m": np.asarray(run.source.position, np.float64).tolist(),
+            "n_photons": float(np.asarray(run.source.n_photons)),
+            "n_events": run.n_events,
+        }
+        for run in runs
+    )
+
+
+def _scalar_values(params: Params, names: Sequence[str]) -> dict[str, float]:
+    """Name -> physical value of every free scalar field."""
+    return {name: float(getattr(params, name)) for name in names if name != "efficiency"}
+
+
+def _largest_move(before: Params, after: Params, errors: dict, names) -> float:
+    """The largest |change| / error over the free values in one pass (inf if an error
+    is zero or not finite while the value moved)."""
+    largest = 0.0
+    for name in names:
+        change = np.abs(np.asarray(getattr(after, name), np.float64)
+                        - np.asarray(getattr(before, name), np.float64))
+        error = np.asarray(errors[name], np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(change > 0, change / error, 0.0)
+        ratio = np.where(np.isfinite(ratio), ratio, np.where(change > 0, np.inf, 0.0))
+        largest = max(largest, float(np.max(ratio)) if ratio.size else 0.0)
+    return largest
