@@ -103,8 +103,10 @@ class CalibrationResult:
         }
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write the JSON file (under a temporary name, then renamed); returns the path."""
+        """Write the JSON file (under a temporary name, then renamed; missing parent
+        folders are created); returns the path."""
         path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
         temporary = path.with_name(f".{path.name}.partial")
         temporary.write_text(json.dumps(self.to_json(), indent=1, allow_nan=True) + "\n")
         os.replace(temporary, path)
