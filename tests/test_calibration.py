@@ -75,6 +75,44 @@ def test_charge_information_of_a_sharp_single_pe_charge_is_poisson():
         assert float(charge_information(np.float32(mu), 0.02)) * mu == pytest.approx(1.0, rel=0.01)
 
 
+@pytest.mark.parametrize(("mu", "expected"), [(1e-3, 1.0), (1000.0, 10.62945)])
+def test_first_hit_time_information_of_a_gaussian_pulse(mu, expected):
+    """Information about a time shift of the first-hit time of a Poisson number (mean mu)
+    of photoelectrons with Gaussian times (sigma 2 ns), from the quantile quadrature:
+    1 / sigma^2 for a single photoelectron (analytic) and 10.62945 / sigma^2 for
+    mu = 1000 (fine-grid integral of (d log p / dt)^2 p, independent of this code);
+    the quantile nodes reproduce the analytic first-hit distribution."""
+    from jax.scipy.stats import norm
+
+    from photonflow.calibration.information import (
+        first_hit_quantiles,
+        first_hit_scores_information,
+        time_nodes,
+    )
+    from photonflow.likelihood import first_hit_logpdf
+    from photonflow.prediction import Prediction
+
+    sigma, window, no_dark = 2.0, (-100.0, 900.0), np.float32(1e-9)
+
+    def prediction(shift):
+        return Prediction.from_components(np.full(3, mu, np.float32), [1.0],
+                                          [50.0 + shift], [sigma])
+
+    x, weights = time_nodes()
+    nodes = first_hit_quantiles(prediction(0.0), no_dark, window, x)
+    z = (np.asarray(nodes, np.float64) - 50.0) / sigma
+    cdf = -np.expm1(-mu * np.asarray(norm.cdf(z))) / -np.expm1(-mu)
+    inner = np.abs(x) < 5.0
+    np.testing.assert_allclose(cdf[:, inner], np.broadcast_to(norm.cdf(x[inner]), (3, inner.sum())),
+                               rtol=2e-3, atol=1e-6)
+    score = jax.vmap(
+        jax.grad(lambda shift, t: first_hit_logpdf(prediction(shift), t, no_dark, window)[0]),
+        in_axes=(None, 0),
+    )(0.0, np.asarray(nodes).T)
+    information = first_hit_scores_information(score[None, None, :], weights)
+    assert float(information[0, 0, 0]) * sigma**2 == pytest.approx(expected, rel=2e-3)
+
+
 @pytest.fixture(scope="module")
 def toy():
     detector = pf.load_detector("TOY_CYLINDER")

@@ -1,4 +1,5 @@
-"""Fisher information of the run-level charge likelihood about the expected charge.
+"""Fisher information of the calibration likelihoods: the charge about its expectation,
+and the first-hit time about the parameters (second half of this module).
 
 A sensor that collects n ~ Poisson(M) photoelectrons over a run records the summed
 charge Q of n single-p.e. charges (``photonflow.spe``; Q = 0 exactly when n = 0). The
@@ -98,7 +99,7 @@ def gaussian_limit(mu, spe_width: float):
 # parameters, E[s s^T] with s = d log p(t) / d theta, is an integral over t. With the
 # first-hit distribution function G, t = G^-1(Phi(x)) maps a standard normal x onto the
 # first-hit time, so E[h(t)] = integral of h(G^-1(Phi(x))) phi(x) dx: a trapezoid rule on
-# a uniform grid in x (weights phi(x)) is exact to ~1e-10 for a Gaussian time density and
+# a uniform grid in x (weights phi(x)) is exact to ~1e-8 for a Gaussian time density and
 # for the first-hit time of many photoelectrons, and robust for mixtures.
 
 #: Number of quadrature nodes in x and their range (+- standard deviations; the mass
