@@ -77,7 +77,11 @@ def _physical_errors(problem: CalibrationProblem, theta: dict, curvature) -> tup
     for spec in PARAM_SPECS:
         value = np.asarray(getattr(slope, spec.name), np.float64)
         if spec.name in sigma_theta:
-            errors[spec.name] = np.abs(value) * np.asarray(sigma_theta[spec.name], np.float64)
+            # a flat direction stays infinite where the map to physical units is flat too
+            # (a probability saturated at 0 or 1), instead of 0 x inf = nan
+            sigma = np.asarray(sigma_theta[spec.name], np.float64)
+            with np.errstate(invalid="ignore"):
+                errors[spec.name] = np.where(np.isinf(sigma), np.inf, np.abs(value) * sigma)
         else:
             errors[spec.name] = np.zeros_like(value)
     return Params.from_dict(errors), correlation
