@@ -292,3 +292,15 @@ def test_time_offsets_and_tts_recovered_with_unit_pulls(toy):
     assert plain.converged, plain.message
     np.testing.assert_allclose(plain.params.time_offset, result.params.time_offset,
                                atol=0.1 * float(np.min(sigma)))
+
+
+def test_a_parameter_running_off_to_infinity_is_refused_in_one_line():
+    """A free value that leaves the finite range during a fit (the SK campaign's
+    absorption length did, at the preset's 552 m) is named in a one-line error instead
+    of failing later inside the linear algebra."""
+    from photonflow.calibration.fit import _refuse_runaway
+
+    _refuse_runaway({"absorption_length": np.array(4.5), "efficiency": np.zeros(3)}, 2)
+    with pytest.raises(ConfigError, match="absorption_length: ran off") as refused:
+        _refuse_runaway({"absorption_length": np.array(np.inf), "efficiency": np.zeros(3)}, 3)
+    assert "\n" not in str(refused.value) and "efficiency" not in str(refused.value)

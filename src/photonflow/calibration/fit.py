@@ -62,6 +62,19 @@ def unconstrained_labels(
     return flat
 
 
+def _refuse_runaway(theta: dict, iteration: int) -> None:
+    """Raise a one-line ``ConfigError`` naming the free fields whose unconstrained value
+    left the finite range during the fit (a length run off to infinity, a probability
+    saturated past float precision): the runs do not constrain them."""
+    runaway = [name for name, value in theta.items() if not np.all(np.isfinite(np.asarray(value)))]
+    if runaway:
+        raise ConfigError(
+            f"free: {', '.join(runaway)}: ran off to the edge of the parameter range at"
+            f" iteration {iteration} (not constrained by these runs); fix them or add runs"
+            " sensitive to them"
+        )
+
+
 def _physical_errors(problem: CalibrationProblem, theta: dict, curvature) -> tuple:
     """(errors ``Params`` in physical units, dense correlation matrix)."""
     layout = problem.layout
@@ -201,6 +214,7 @@ def calibrate(
     converged, message = False, f"stopped at max_iterations = {max_iterations}"
     for iteration in range(1, int(max_iterations) + 1):
         theta, state, step = step_rule.update(problem, theta, state)
+        _refuse_runaway(theta, iteration)
         values = _dense_values(problem, problem.params_of(theta))
         history.append({"iteration": iteration, "loss": step.loss,
                         "time_s": time.perf_counter() - started, "values": values})
