@@ -44,7 +44,7 @@ from ..errors import ConfigError
 from ..geometry.detector import Detector
 from ..likelihood import dark_expectation
 from ..params import Params, to_unconstrained, validate_params
-from ..sources import IsotropicSource, source_kind
+from ..sources import IsotropicSource
 from ..spe import single_pe_moments
 from ..transport.direct import direct_light
 from ..transport.expected import expected
@@ -52,7 +52,7 @@ from ..transport.optics import TransportConfig
 from .layout import free_layout
 from .objective import CalibrationProblem
 from .result import CalibrationResult
-from .runs import RunData, prepare_runs
+from .runs import RunData, prepare_runs, run_provenance
 
 #: Scalar fields the sequential method fits by a one-dimensional likelihood scan (block c).
 SCAN_FIELDS = (
@@ -566,24 +566,10 @@ def sequential_calibration(
             "scan_step": float(scan_step),
             "likelihood_evaluations": scanner.evaluations,
         },
-        runs=_run_provenance(prepared),
+        runs=run_provenance(prepared),
         detector={"name": detector.name, "n_sensors": detector.n_sensors},
         truth=truth,
         wall_time_s=time.perf_counter() - started,
-    )
-
-
-def _run_provenance(runs: Sequence[RunData]) -> tuple[dict, ...]:
-    """Per run: label, source kind, position (m), photons per flash, events."""
-    return tuple(
-        {
-            "label": run.label,
-            "source": source_kind(run.source),
-            "position_m": np.asarray(run.source.position, np.float64).tolist(),
-            "n_photons": float(np.asarray(run.source.n_photons)),
-            "n_events": run.n_events,
-        }
-        for run in runs
     )
 
 

@@ -14,13 +14,12 @@ import numpy as np
 from ..errors import ConfigError
 from ..geometry.detector import Detector
 from ..params import PARAM_SPECS, Params, from_unconstrained, validate_params
-from ..sources import source_kind
 from ..transport.optics import TransportConfig
 from .layout import FreeLayout, free_layout
 from .methods import make_method
 from .objective import CalibrationProblem
 from .result import CalibrationResult
-from .runs import prepare_runs
+from .runs import prepare_runs, run_provenance
 from .structured import StructuredMatrix
 
 #: A free value whose 1-sigma uncertainty exceeds this, in unconstrained units (log for
@@ -110,19 +109,6 @@ def _dense_values(problem: CalibrationProblem, params: Params) -> dict[str, floa
         else:
             values[name] = float(value)
     return values
-
-
-def _run_provenance(runs) -> tuple[dict, ...]:
-    return tuple(
-        {
-            "label": run.label,
-            "source": source_kind(run.source),
-            "position_m": np.asarray(run.source.position, np.float64).tolist(),
-            "n_photons": float(np.asarray(run.source.n_photons)),
-            "n_events": run.n_events,
-        }
-        for run in runs
-    )
 
 
 def calibrate(
@@ -256,7 +242,7 @@ def calibrate(
             "loss_tolerance": loss_tolerance,
             "step_tolerance": step_tolerance,
         },
-        runs=_run_provenance(prepared),
+        runs=run_provenance(prepared),
         detector={"name": detector.name, "n_sensors": detector.n_sensors},
         truth=truth,
         wall_time_s=time.perf_counter() - started,

@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..geometry.detector import Detector
 from ..io.events import Event
-from ..sources import DiffuserSource, IsotropicSource, LaserSource, check_source
+from ..sources import DiffuserSource, IsotropicSource, LaserSource, check_source, source_kind
 
 #: The likelihoods a calibration can use.
 LIKELIHOODS = ("charge", "charge+time")
@@ -162,3 +162,18 @@ def prepare_runs(
         _check_events(run, index, detector.n_sensors)
         prepared.append(reduce_run(run, detector.n_sensors, likelihood == "charge+time"))
     return prepared
+
+
+def run_provenance(runs: Sequence[RunData]) -> tuple[dict, ...]:
+    """Per run, for result files: label, source kind, position (m), photons per flash,
+    events."""
+    return tuple(
+        {
+            "label": run.label,
+            "source": source_kind(run.source),
+            "position_m": np.asarray(run.source.position, np.float64).tolist(),
+            "n_photons": float(np.asarray(run.source.n_photons)),
+            "n_events": run.n_events,
+        }
+        for run in runs
+    )
