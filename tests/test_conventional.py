@@ -27,7 +27,7 @@ from photonflow.io import make_event
 from photonflow.transport.optics import TransportConfig
 from photonflow.transport.pseudo_data import sample_events
 
-CONFIG = TransportConfig(n_bounces=3, n_rays=16384)
+CONFIG = TransportConfig(n_bounces=3, n_rays=4096)
 POSITIONS = ([0.0, 0.0, 0.0], [0.0, 0.0, 1.4], [0.0, 0.0, -1.4], [1.3, 0.3, 0.5])
 
 

@@ -172,9 +172,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--experiments", type=int, default=20)
     parser.add_argument("--quick", action="store_true",
-                        help="2 experiments, 4096 rays, 2 passes: a smoke run, not a result")
+                        help="2 experiments, 1024 rays, 2 passes: a smoke run, not a result")
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--rays", type=int, default=16384, help="expected-mode rays per run")
+    parser.add_argument("--rays", type=int, default=4096, help="expected-mode rays per run")
     parser.add_argument("--bounces", type=int, default=3)
     parser.add_argument("--photons", type=float, default=1e5, help="photons per flash")
     parser.add_argument("--flashes", default="10,5",
@@ -185,7 +185,7 @@ def main() -> None:
     parser.add_argument("--json", help="write every fit's summary to this file")
     args = parser.parse_args()
     if args.quick:
-        args.experiments, args.rays, args.iterations = min(args.experiments, 2), 4096, 2
+        args.experiments, args.rays, args.iterations = min(args.experiments, 2), 1024, 2
     optics = [name.strip() for name in args.optics.split(",") if name.strip()]
     flashes = tuple(int(x) for x in args.flashes.split(","))
 
