@@ -524,14 +524,9 @@ def indirect_light_jit(
         zeros = tuple(jnp.zeros(n, dtype=dtype) for _ in range(3))
         return jax.lax.scan(accumulate, zeros, blocks)[0]
 
-    def probes(origins, directions, weight, time, focused_only):
-        """Delta detections of ``_specular_probes`` summed over the probe axis."""
-        return _specular_probes(
-            params, shape, grid, sensors, reference_time, origins, directions, weight, time,
-            source.position if focused_only else None,
-        )
+    probes = functools.partial(_specular_probes, params, shape, grid, sensors, reference_time)
 
-    def step(carry, order):
+    def step(carry, order, with_probes: bool):
         origins, directions, weight, time, on_disc = carry
         u = jax.random.uniform(
             jax.random.fold_in(vertex_key, order), (_UNIFORMS_PER_VERTEX, n_rays), dtype=dtype
@@ -562,7 +557,7 @@ def indirect_light_jit(
             dome_normal(vertex - sensor_positions[index], glass_normal, sensor_radius[index]),
         )
         outgoing = functools.partial(_outgoing, params, config, kind, directions, normal)
-        if has_walls:  # light of this vertex mirrored once by the wall into a sensor
+        if with_probes:  # light of this vertex mirrored once by the wall into a sensor
             u_probe = jax.random.uniform(
                 jax.random.fold_in(probe_key, order),
                 (_UNIFORMS_PER_VERTEX, config.specular_probes, n_rays),
@@ -580,42 +575,48 @@ def indirect_light_jit(
                 return jnp.where(glass, sensor_positions[index] + offset, vertex), direction, factor
 
             probe_origins, probe_directions, probe_factor = jax.vmap(probe, in_axes=1)(u_probe)
-            probe_weight = jnp.where(order < config.n_bounces, weight, 0.0)
             mirrored = probes(
                 probe_origins, probe_directions,
-                probe_weight * probe_factor / config.specular_probes, time, False,
+                weight * probe_factor / config.specular_probes, time, None,
             )
         else:
-            mirrored = tuple(jnp.zeros(n, dtype) for _ in range(3))
+            mirrored = ()
         directions, factor = outgoing(u, glass_direction)
         carry = (vertex, directions, weight * factor, time, own_disc)
         return carry, (mirrored, detected)
 
-    if has_walls and config.n_bounces > 0:
-        # source light mirrored once into a sensor near caustics (the rest is
-        # ``mirror_light``'s quadrature), from emission directions of its own
-        probe_emission = shifted_lattice(probe_key, config.specular_probes * n_rays, dtype)
-        source_mirrored = probes(
-            origins[:1],
-            sample_directions(source, probe_emission[0], probe_emission[1])[:, None],
-            jnp.broadcast_to(source.n_photons / probe_emission.shape[1], (1,)).astype(dtype),
-            time[:1],
-            True,
-        )
     carry = (origins, directions, weight, time, on_disc)
     orders = jnp.arange(1, config.n_bounces + 1)
-    carry, (mirrored, detected) = jax.lax.scan(step, carry, orders)
+    mirror_paths = has_walls and config.n_bounces > 0
+    # vertices of order k < n_bounces send specular probes (their mirror vertex, order
+    # k + 1, is within the cap); the last order's vertices do not
+    carry, (mirrored, detected) = jax.lax.scan(
+        functools.partial(step, with_probes=mirror_paths), carry, orders[:-1]
+    )
+    carry, (_, last) = step(carry, orders[-1], with_probes=False) if orders.size else (
+        carry, ((), tuple(jnp.zeros((0, n), dtype) for _ in range(3)))
+    )
     origins, directions, weight, _, _ = carry
     t_end, _, hit, alive = _trace(shape, grid, sensors, origins, directions)
     residual = _residual(params, has_walls, jnp.where(alive, weight, 0.0), t_end, hit)
-    total = list(detected)
-    if has_walls and config.n_bounces > 0:
-        # probes from the vertex of order k find paths whose mirror vertex is order k + 1
-        mirrored = [
-            jnp.concatenate([first[None], rest[:-1]], axis=0)
-            for first, rest in zip(source_mirrored, mirrored, strict=True)
+    total = [jnp.concatenate([d, l[None]], axis=0) if orders.size else l
+             for d, l in zip(detected, last, strict=True)]
+    if mirror_paths:
+        # source light mirrored once into a sensor near caustics (the rest is
+        # ``mirror_light``'s quadrature), from emission directions of its own; it and
+        # the probes of order-k vertices are the light whose mirror vertex is order k + 1
+        emission = shifted_lattice(probe_key, config.specular_probes * n_rays, dtype)
+        source_mirrored = probes(
+            source.position,
+            sample_directions(source, emission[0], emission[1]),
+            jnp.asarray(source.n_photons / emission.shape[1], dtype),
+            jnp.asarray(source.time, dtype),
+            source.position,
+        )
+        total = [
+            t + jnp.concatenate([first[None], rest], axis=0)
+            for t, first, rest in zip(total, source_mirrored, mirrored, strict=True)
         ]
-        total = [t + m for t, m in zip(total, mirrored, strict=True)]
         mirrored = mirror_light(
             params, shape, grid, sensor_positions, sensor_normals, sensor_radius, source,
             reference_time,
