@@ -16,7 +16,7 @@ from photonflow.calibration import (
 )
 from photonflow.calibration.information import gaussian_limit
 from photonflow.calibration.objective import with_response, without_response
-from photonflow.calibration.structured import StructuredMatrix
+from photonflow.calibration.structured import SandwichCovariance, StructuredMatrix
 from photonflow.errors import ConfigError
 from photonflow.io import make_event
 from photonflow.transport.optics import TransportConfig
@@ -47,6 +47,16 @@ def test_structured_solve_and_covariance_match_dense_algebra():
     dense_cov, sensor_var = matrix.covariance()
     np.testing.assert_allclose(dense_cov, inverse[:3, :3], rtol=1e-10)
     np.testing.assert_allclose(sensor_var.ravel(), np.diag(inverse)[3:], rtol=1e-10)
+
+
+def test_sandwich_covariance_dense_block_matches_dense_algebra():
+    rng = np.random.default_rng(4)
+    newton, information = _random_structured(rng), _random_structured(rng)
+    m_inverse = np.linalg.inv(newton.dense_matrix())
+    expected = (m_inverse @ information.dense_matrix() @ m_inverse)[:3, :3]
+    dense_cov, sensor_var = SandwichCovariance(newton, information).covariance()
+    np.testing.assert_allclose(dense_cov, expected, rtol=1e-10)
+    np.testing.assert_allclose(sensor_var, newton.covariance()[1], rtol=1e-12)
 
 
 @pytest.mark.parametrize("mu", [1e-3, 1e-2])

@@ -8,14 +8,23 @@ sources are a central vertically-downward laser and 15 isotropic flashes (the ce
 efficiencies at 1. Prints fitted versus true, the efficiency error against the
 Cramer-Rao bound, and the wall time of the fit (the benchmark of BENCHMARKS.md).
 
-    python examples/calibration/sk_joint.py [--seed 1] [--photons 1e6] [--rays 1024]
+With ``--experiments N`` it repeats this for N independent pseudo-experiments (seeds
+``seed .. seed + N - 1``: new pseudo-data, new efficiencies, a new ray key for the expected
+mode) and prints the pulls of the optics and the efficiency error against the bound over
+all of them; ``--out`` keeps every experiment's numbers in a JSON file, rewritten after
+each experiment.
+
+    python examples/calibration/sk_joint.py [--seed 1] [--experiments 1] [--photons 1e6]
+        [--rays 1024] [--out sk_pulls.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
 
+import jax
 import numpy as np
 
 import photonflow as pf
@@ -43,17 +52,11 @@ def grid_positions(detector) -> list[list[float]]:
     return points
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--photons", type=float, default=1e6, help="photons per flash")
-    parser.add_argument("--rays", type=int, default=1024, help="expected-mode rays per run")
-    parser.add_argument("--free", default=",".join([*OPTICS, "efficiency"]))
-    args = parser.parse_args()
-
-    detector = pf.load_detector("SK")
+def experiment(detector, seed: int, photons: float, rays: int, free: list[str]) -> dict:
+    """One pseudo-experiment: pseudo-data with efficiencies and Poisson draws from
+    ``seed``, the fit with ray key ``seed``; returns the numbers the summary needs."""
     nominal = pf.default_params(detector)
-    rng = np.random.default_rng(args.seed)
+    rng = np.random.default_rng(seed)
     truth = nominal.replace(**TRUE_OPTICS, efficiency=rng.normal(1.0, 0.1, detector.n_sensors))
     start = nominal.replace(
         absorption_length=float(truth.absorption_length) * 1.25,
@@ -61,33 +64,39 @@ def main() -> None:
         wall_reflectivity=float(truth.wall_reflectivity) * 0.75,
         sensor_reflectivity=float(truth.sensor_reflectivity) * 1.25,
     )
-    config = TransportConfig(n_bounces=2, n_rays=args.rays)
+    config = TransportConfig(n_bounces=2, n_rays=rays)
     sources = [pf.LaserSource(position=[0.0, 0.0, 0.0], direction=[0.0, 0.0, -1.0],
-                              opening_angle=0.2, n_photons=args.photons)]
-    sources += [pf.IsotropicSource(position=p, n_photons=args.photons)
+                              opening_angle=0.2, n_photons=photons)]
+    sources += [pf.IsotropicSource(position=p, n_photons=photons)
                 for p in grid_positions(detector)]
     began = time.perf_counter()
     runs = [
-        (source, list(sample_events(detector, truth, source, 1000 * args.seed + k, 1,
+        (source, list(sample_events(detector, truth, source, 1000 * seed + k, 1,
                                     config=config)))
         for k, source in enumerate(sources)
     ]
     simulated = time.perf_counter() - began
-    print(f"pseudo-data: {len(runs)} runs in {simulated:.0f} s (sampled mode)", flush=True)
+    print(f"seed {seed}: pseudo-data, {len(runs)} runs in {simulated:.0f} s (sampled mode)",
+          flush=True)
 
     def report(iteration, loss, values):
         shown = ", ".join(f"{k} {v:.4g}" for k, v in values.items())
         print(f"  iteration {iteration}: -log L {loss:.2f}  {shown}", flush=True)
 
-    result = calibrate(detector, runs, start, args.free.split(","), config=config,
-                       truth=truth, callback=report)
-    print(f"fit: {result.message}; {len(result.history) - 1} iterations,"
+    result = calibrate(detector, runs, start, free, config=config, truth=truth,
+                       callback=report, key=jax.random.key(seed))
+    row = {"seed": seed, "converged": result.converged, "message": result.message,
+           "iterations": len(result.history) - 1, "pseudo_data_s": simulated,
+           "fit_s": result.wall_time_s, "optics": {}}
+    print(f"fit: {result.message}; {row['iterations']} iterations,"
           f" {result.wall_time_s:.0f} s wall")
     for name in result.free:
         if name == "efficiency":
             continue
         fitted, error = float(getattr(result.params, name)), float(getattr(result.errors, name))
         true = float(getattr(truth, name))
+        row["optics"][name] = {"fitted": fitted, "error": error, "true": true,
+                               "pull": (fitted - true) / error}
         print(f"  {name:22s} {fitted:10.4g} +- {error:.2g}   true {true:.4g}"
               f"   pull {(fitted - true) / error:+.2f}")
     if "efficiency" in result.free:
@@ -95,8 +104,49 @@ def main() -> None:
         bound = np.asarray(result.errors.efficiency)
         rms, crb = np.sqrt(np.mean(error**2)), np.sqrt(np.mean(bound**2))
         pulls = error / bound
+        row["efficiency"] = {"rms": float(rms), "bound": float(crb),
+                             "pull_mean": float(pulls.mean()), "pull_width": float(pulls.std())}
         print(f"  efficiency: RMS error {rms:.4f}, Cramer-Rao bound {crb:.4f}"
-              f" (ratio {rms / crb:.2f}); pulls mean {pulls.mean():+.2f} width {pulls.std():.2f}")
+              f" (ratio {rms / crb:.2f}); pulls mean {pulls.mean():+.2f} width {pulls.std():.2f}",
+              flush=True)
+    return row
+
+
+def summary(rows: list[dict]) -> None:
+    """Pull mean and width per optical parameter, efficiency RMS / bound, wall times."""
+    print(f"\n{len(rows)} pseudo-experiments; converged"
+          f" {sum(row['converged'] for row in rows)}/{len(rows)}")
+    names = list(rows[0]["optics"])
+    for name in names:
+        pulls = np.array([row["optics"][name]["pull"] for row in rows])
+        width = float(np.std(pulls, ddof=1)) if len(pulls) > 1 else float("nan")
+        print(f"  {name:22s} pull mean {pulls.mean():+.2f} width {width:.2f}")
+    if "efficiency" in rows[0]:
+        ratio = [row["efficiency"]["rms"] / row["efficiency"]["bound"] for row in rows]
+        print(f"  efficiency RMS / Cramer-Rao bound: median {np.median(ratio):.3f},"
+              f" max {np.max(ratio):.3f}")
+    fits = [row["fit_s"] for row in rows]
+    print(f"  fit wall time: median {np.median(fits):.0f} s, first {fits[0]:.0f} s")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=1, help="first experiment's seed")
+    parser.add_argument("--experiments", type=int, default=1)
+    parser.add_argument("--photons", type=float, default=1e6, help="photons per flash")
+    parser.add_argument("--rays", type=int, default=1024, help="expected-mode rays per run")
+    parser.add_argument("--free", default=",".join([*OPTICS, "efficiency"]))
+    parser.add_argument("--out", help="JSON file for the per-experiment numbers")
+    args = parser.parse_args()
+
+    detector = pf.load_detector("SK")
+    rows = []
+    for seed in range(args.seed, args.seed + args.experiments):
+        rows.append(experiment(detector, seed, args.photons, args.rays, args.free.split(",")))
+        if args.out:
+            with open(args.out, "w") as handle:
+                json.dump({"settings": vars(args), "experiments": rows}, handle, indent=1)
+    summary(rows)
 
 
 if __name__ == "__main__":

@@ -38,6 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..errors import ConfigError
 from ..geometry.detector import Detector
 from ..likelihood import (
     charge_logpdf,
@@ -121,6 +122,10 @@ jax.tree_util.register_dataclass(
 #: Free fields that change only the first-hit time density, not the expected charge:
 #: when nothing else is free, the charge terms of "charge+time" are constant.
 TIME_FIELDS = frozenset({"time_offset", "tts"})
+
+#: ``fold_in`` tag of a run's independent ray set (its derivatives J of the expected
+#: charges, ``CalibrationProblem.independent_ray_curvature``).
+JACOBIAN_RAY_STREAM = 0x4A4143
 
 #: Events per block when a run's per-event terms are evaluated: bounds the memory of the
 #: charge model's photoelectron sum (``N_TERMS`` values per sensor and event).
@@ -215,9 +220,9 @@ def _blocks(layout: FreeLayout, information):
     return a, information[:, n_dense:, :n_dense], information[:, n_dense:, n_dense:]
 
 
-def _fisher_run(theta, base, sensors, data, cached, static: _Static):
-    """(terms (N,), gradient (P,), (N, F), Fisher parts A, C, B) of one run, charge
-    likelihood: J from forward-mode derivatives of M, I(M) from ``information``."""
+def _charge_jacobian(theta, base, sensors, data, cached, static: _Static):
+    """(M (N,) p.e., J (N, T)): the run's expected charges and their forward-mode
+    derivatives along the tangents of ``_tangents``."""
     layout = static.layout
     dense0, sensor0 = layout.split(theta)
 
@@ -228,6 +233,11 @@ def _fisher_run(theta, base, sensors, data, cached, static: _Static):
     mean, jac = jax.vmap(
         lambda td, ts: jax.jvp(mean_of, (dense0, sensor0), (td, ts)), out_axes=(None, 0)
     )(tangent_dense, tangent_sensor)
+    return mean, jac.T
+
+
+def _charge_score(theta, base, data, mean):
+    """(-log L terms (N,), dL/dM (N,)) of the summed-charge likelihood at charges M."""
     spe_width = _params_of(theta, base).spe_width
 
     def total(m):
@@ -235,12 +245,40 @@ def _fisher_run(theta, base, sensors, data, cached, static: _Static):
         return jnp.sum(terms), terms
 
     (_, terms), score = jax.value_and_grad(total, has_aux=True)(mean)
+    return terms, score
+
+
+def _fisher_run(theta, base, sensors, data, cached, static: _Static):
+    """(terms (N,), gradient (P,), (N, F), Fisher parts A, C, B) of one run, charge
+    likelihood: J from forward-mode derivatives of M, I(M) from ``information``."""
+    layout = static.layout
+    mean, jac = _charge_jacobian(theta, base, sensors, data, cached, static)
+    terms, score = _charge_score(theta, base, data, mean)
     weight = charge_information(mean, static.spe_width)
-    jac = jac.T  # (N, T)
     grad = jac * score[:, None]
     information = weight[:, None, None] * jac[:, :, None] * jac[:, None, :]
     a, c, b = _blocks(layout, information)
     return terms, jnp.sum(grad[:, : layout.n_dense], axis=0), grad[:, layout.n_dense:], a, c, b
+
+
+def _independent_ray_run(theta, base, sensors, data, cached, static: _Static, jacobian_key):
+    """The independent-ray parts of one run (charge likelihood): M_a, J_a from the run's
+    rays, J_b from the rays of ``jacobian_key``. Returns (terms (N,), score J_b^T dL/dM_a
+    as (P,) and (N, F), the symmetrised cross information I (J_a J_b^T + J_b J_a^T) / 2
+    as blocks A, C, B (the score's derivative, without the noise-squared term that
+    J_b J_b^T carries), and I J_b J_b^T as blocks (the score's covariance))."""
+    layout = static.layout
+    mean, jac_a = _charge_jacobian(theta, base, sensors, data, cached, static)
+    _, jac_b = _charge_jacobian(theta, base, sensors, dataclasses.replace(data, key=jacobian_key),
+                                cached, static)
+    terms, score = _charge_score(theta, base, data, mean)
+    weight = charge_information(mean, static.spe_width)[:, None, None]
+    grad = jac_b * score[:, None]
+    cross = jac_a[:, :, None] * jac_b[:, None, :]
+    newton = _blocks(layout, weight * 0.5 * (cross + jnp.swapaxes(cross, 1, 2)))
+    information = _blocks(layout, weight * jac_b[:, :, None] * jac_b[:, None, :])
+    return (terms, jnp.sum(grad[:, : layout.n_dense], axis=0), grad[:, layout.n_dense:],
+            *newton, *information)
 
 
 def _event_fisher_run(theta, base, sensors, data, cached, static: _Static):
@@ -302,6 +340,7 @@ _value_and_grad_jit = jax.jit(
     jax.value_and_grad(_run_nll, has_aux=True), static_argnames=("static",)
 )
 _fisher_jit = jax.jit(_fisher_run, static_argnames=("static",))
+_independent_ray_jit = jax.jit(_independent_ray_run, static_argnames=("static",))
 _event_fisher_jit = jax.jit(_event_fisher_run, static_argnames=("static",))
 _median_jit = jax.jit(_first_hit_median, static_argnames=("static",))
 
@@ -358,6 +397,10 @@ class CalibrationProblem:
             )
             for index, run in enumerate(runs)
         ]
+        #: per run, the key of its independent ray set (``independent_ray_curvature``)
+        self.jacobian_keys = [
+            jax.random.fold_in(data.key, JACOBIAN_RAY_STREAM) for data in self.arrays
+        ]
         time_only = per_event and set(layout.names) <= TIME_FIELDS
         self.statics = [
             _Static(
@@ -413,6 +456,14 @@ class CalibrationProblem:
             gradient = grad if gradient is None else jax.tree.map(jnp.add, gradient, grad)
         return total, gradient
 
+    @property
+    def has_independent_rays(self) -> bool:
+        """True when ``independent_ray_curvature`` applies: the charge
+        likelihood with a free field that changes the light transport, and indirect
+        light (rays) in the expected mode."""
+        return (self.likelihood == "charge" and self.layout.needs_transport
+                and self.config.n_bounces > 0)
+
     def curvature(self, theta: dict) -> tuple[float, np.ndarray, np.ndarray, StructuredMatrix]:
         """(-log L, gradient dense (P,), gradient per sensor (N, F), curvature): the
         expected Fisher information of the likelihood (charge, or charge and first-hit
@@ -425,6 +476,36 @@ class CalibrationProblem:
             sums = run if sums is None else [s + x for s, x in zip(sums, run, strict=True)]
         grad_dense, grad_sensor, a, c, b = sums
         return value, grad_dense, grad_sensor, StructuredMatrix(a, c, b)
+
+    def independent_ray_curvature(
+        self, theta: dict
+    ) -> tuple[float, np.ndarray, np.ndarray, StructuredMatrix, StructuredMatrix]:
+        """(-log L, score dense (P,), score per sensor (N, F), Newton matrix, score
+        information) of the independent-ray estimating equation
+        (``has_independent_rays`` only): every run's expected charges M_a come from its
+        own rays and the derivatives J_b from a second, independent ray set; the score
+        is J_b^T dL/dM_a, the Newton matrix the symmetrised I (J_a J_b^T + J_b J_a^T) / 2
+        and the score's covariance I J_b J_b^T (float64 numpy). Its root is free of the
+        bias that the correlated ray noise of M and J puts into the minimum of -log L
+        (docs/calibration.md, "Ray noise and the independent-ray score")."""
+        if not self.has_independent_rays:
+            raise ConfigError(
+                "independent rays: need the charge likelihood, a free field that changes"
+                " the light transport and n_bounces > 0"
+            )
+        value, sums = self.constant, None
+        for data, cached, static, key in zip(
+            self.arrays, self.cached, self.statics, self.jacobian_keys, strict=True
+        ):
+            terms, *run = _independent_ray_jit(
+                theta, self.base, self.sensors, data, cached, static=static, jacobian_key=key
+            )
+            value += _total(terms)
+            run = [np.asarray(x, dtype=np.float64) for x in run]
+            sums = run if sums is None else [s + x for s, x in zip(sums, run, strict=True)]
+        grad_dense, grad_sensor, *blocks = sums
+        return (value, grad_dense, grad_sensor, StructuredMatrix(*blocks[:3]),
+                StructuredMatrix(*blocks[3:]))
 
     def median_time_shift(self, theta: dict) -> np.ndarray:
         """(N,) ns: per sensor, the median over all runs' hits of (recorded first-hit time

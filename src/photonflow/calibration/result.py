@@ -34,7 +34,9 @@ class CalibrationResult:
         correlation_names: the P labels of its rows (e.g. "absorption_length").
         history: one dict per iteration: ``iteration``, ``loss`` (-log L), ``time_s``
             (since the start) and ``values`` (label -> physical value of every dense
-            free entry).
+            free entry). Steps of the independent-ray stage (charge likelihood with
+            free optics, ``fit.calibrate``) carry ``"stage": "independent rays"`` and
+            the -log L of the point the step started from.
         free: the free fields.
         method: step rule used ("gauss-newton", "lbfgs", "adam").
         likelihood: "charge" or "charge+time".

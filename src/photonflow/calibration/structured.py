@@ -117,6 +117,33 @@ class StructuredMatrix:
         return full
 
 
+@dataclasses.dataclass(frozen=True)
+class SandwichCovariance:
+    """The covariance M^-1 V M^-1 of the root of an estimating equation with symmetric
+    derivative M and score covariance V (both ``StructuredMatrix``): the dense block
+    exactly (P structured solves), the per-sensor variances from M alone (their
+    estimating equations are the likelihood's to the precision that matters: a
+    sensor's own derivative comes from its direct light, which has no ray noise)."""
+
+    newton: StructuredMatrix
+    information: StructuredMatrix
+
+    def covariance(self) -> tuple[np.ndarray, np.ndarray]:
+        """(dense covariance (P, P), per-sensor variances (N, F)), as
+        ``StructuredMatrix.covariance``; inf where M is singular."""
+        newton_dense, sensor = self.newton.covariance()
+        p = self.newton.a.shape[0]
+        if not p or not np.all(np.isfinite(newton_dense)):
+            return newton_dense, sensor
+        n, f = self.newton.b.shape[:2]
+        columns = [self.newton.solve(np.eye(p)[k], np.zeros((n, f))) for k in range(p)]
+        images = [self.information.multiply(*column) for column in columns]
+        dense = np.array([
+            [float(xd @ vd + np.sum(xs * vs)) for vd, vs in images] for xd, xs in columns
+        ])
+        return 0.5 * (dense + dense.T), sensor
+
+
 def _inverse_or_inf(matrix: np.ndarray) -> np.ndarray:
     """The inverse of a symmetric matrix; where it is singular, the pseudo-inverse with
     inf on the diagonal of every entry that takes part in a flat direction."""
