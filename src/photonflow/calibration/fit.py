@@ -106,7 +106,7 @@ INDEPENDENT_RAY_STEPS = 10
 def _independent_ray_steps(
     problem: CalibrationProblem, theta: dict, history: list, started: float,
     step_tolerance: float, callback,
-) -> tuple[dict, SandwichCovariance | None, bool, str]:
+) -> tuple[dict, SandwichCovariance, bool, str]:
     """Newton steps from the minimum of -log L to the root of the independent-ray score
     (``CalibrationProblem.independent_ray_curvature``); stops when every free value
     moves by less than ``step_tolerance`` sigma. Appends to ``history`` (``"stage":
