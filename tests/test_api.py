@@ -28,10 +28,12 @@ def test_top_level_names():
 
 def test_nll_contract_needs_only_prediction_and_event():
     """``nll(prediction, event)`` (issue 3): the prediction carries its response settings;
-    a prediction without them is refused in one line."""
-    detector = pf.load_detector("TOY_SPHERE")
+    a prediction without them is refused in one line. The detector, source and (default)
+    transport settings are the README example's, so that the two tests share compiled
+    code (one compilation of ``sample`` and of ``expected`` instead of two each)."""
+    detector = pf.load_detector("TOY_CYLINDER")
     params = pf.default_params(detector)
-    source = pf.IsotropicSource(position=[0.2, 0.0, 0.0], n_photons=1e4)
+    source = pf.IsotropicSource(position=[0.3, 0.0, 0.5], n_photons=1e5)
     event = pf.sample(detector, params, source, seed=2)
     prediction = pf.expected(detector, params, source)
     value = float(pf.nll(prediction, event))

@@ -151,49 +151,61 @@ def test_one_lambertian_bounce_in_a_sphere_against_numpy_monte_carlo():
 
 
 def test_noise_falls_as_inverse_sqrt_of_rays():
+    """In float64 with SMALL's settings, the compiled code of the direct-light test above
+    serves the 1024-ray estimates."""
     detector = preset_detector("TOY_SPHERE")
-    params = scattering_params(detector, wall_specular_fraction=0.0, sensor_reflectivity=0.0)
-    source = IsotropicSource(position=[0.2, 0.1, -0.3], n_photons=1e6)
-    mu, _ = direct_light(detector, params, source)
-
-    def relative_spread(n_rays):
-        config = dataclasses.replace(SMALL, n_rays=n_rays)
-        charges = np.stack(
-            [
-                np.asarray(
-                    expected(detector, params, source, config=config, key=jax.random.key(k)).charge
-                    - mu
-                )
-                for k in range(8)
-            ]
+    with jax.enable_x64(True):
+        params = scattering_params(
+            detector, wall_specular_fraction=0.0, sensor_reflectivity=0.0
         )
-        return np.median(charges.std(axis=0, ddof=1) / charges.mean(axis=0))
+        source = IsotropicSource(position=[0.2, 0.1, -0.3], n_photons=1e6)
+        mu, _ = direct_light(detector, params, source)
 
-    ratio = relative_spread(256) / relative_spread(1024)
+        def relative_spread(n_rays):
+            config = dataclasses.replace(SMALL, n_rays=n_rays)
+            charges = np.stack(
+                [
+                    np.asarray(
+                        expected(
+                            detector, params, source, config=config, key=jax.random.key(k)
+                        ).charge
+                        - mu
+                    )
+                    for k in range(8)
+                ]
+            )
+            return np.median(charges.std(axis=0, ddof=1) / charges.mean(axis=0))
+
+        ratio = relative_spread(256) / relative_spread(1024)
     assert 1.5 < ratio < 2.7
 
 
 def test_mixture_is_normalised_and_residual_decreases():
-    detector = preset_detector("TOY_CYLINDER")
-    params = scattering_params(detector)
-    source = DiffuserSource(
-        position=[0.2, -0.4, 0.6],
-        n_photons=1e5,
-        direction=[0.0, 0.0, 1.0],
-        anisotropy=0.3,
-        time=5.0,
-        pulse_width=1.0,
-    )
+    """Sphere, float64, diffuser and 256 rays: at two bounces the gradient test's
+    compiled transport (one compilation fewer)."""
+    detector = preset_detector("TOY_SPHERE")
     residuals = []
-    for n_bounces in (1, 2):
-        config = dataclasses.replace(SMALL, n_bounces=n_bounces, n_rays=256)
-        prediction = expected(detector, params, source, config=config)
-        assert prediction.time_weight.shape == (detector.n_sensors, 1 + n_bounces)
-        np.testing.assert_allclose(np.asarray(prediction.time_weight.sum(axis=1)), 1.0, rtol=1e-6)
-        assert np.all(np.asarray(prediction.time_sigma) > 0)
-        residuals.append(float(prediction.residual_weight))
-    times = jnp.linspace(-100.0, 300.0, 8001)
-    pdf = jax.vmap(lambda t: prediction.time_pdf(jnp.full(detector.n_sensors, t)))(times)
+    with jax.enable_x64(True):
+        params = scattering_params(detector)
+        source = DiffuserSource(
+            position=[0.2, -0.4, 0.6],
+            n_photons=1e5,
+            direction=[0.0, 0.0, 1.0],
+            anisotropy=0.3,
+            time=5.0,
+            pulse_width=1.0,
+        )
+        for n_bounces in (1, 2):
+            config = dataclasses.replace(SMALL, n_bounces=n_bounces, n_rays=256)
+            prediction = expected(detector, params, source, config=config)
+            assert prediction.time_weight.shape == (detector.n_sensors, 1 + n_bounces)
+            np.testing.assert_allclose(
+                np.asarray(prediction.time_weight.sum(axis=1)), 1.0, rtol=1e-6
+            )
+            assert np.all(np.asarray(prediction.time_sigma) > 0)
+            residuals.append(float(prediction.residual_weight))
+        times = jnp.linspace(-100.0, 300.0, 8001)
+        pdf = jax.vmap(lambda t: prediction.time_pdf(jnp.full(detector.n_sensors, t)))(times)
     integral = np.trapezoid(np.asarray(pdf, dtype=np.float64), np.asarray(times), axis=0)
     np.testing.assert_allclose(integral, 1.0, atol=2e-4)
     assert residuals[0] > residuals[1] > 0
@@ -201,19 +213,24 @@ def test_mixture_is_normalised_and_residual_decreases():
 
 def test_no_recompilation_when_values_change():
     detector = preset_detector("TOY_SPHERE")
-    params = scattering_params(detector)
-    source = IsotropicSource(position=[0.1, 0.0, 0.0], n_photons=1e5)
-    expected(detector, params, source, config=SMALL)
-    size = expected_jit._cache_size()
-    for k in range(3):
-        changed = params.replace(absorption_length=25.0 + k, wall_reflectivity=0.2 + 0.1 * k)
-        moved = replace(
-            source, position=jnp.array([0.1 * k, 0.2, 0.0]), n_photons=jnp.array(1e4 * (k + 1))
-        )
-        expected(
-            detector, changed, moved, config=SMALL, key=jax.random.key(k)
-        ).charge.block_until_ready()
-    assert expected_jit._cache_size() == size
+    with jax.enable_x64(True):  # float64: the transport compiled for the tests above
+        params = scattering_params(detector)
+        source = IsotropicSource(position=[0.1, 0.0, 0.0], n_photons=1e5)
+        expected(detector, params, source, config=SMALL)
+        size = expected_jit._cache_size()
+        for k in range(3):
+            changed = params.replace(
+                absorption_length=25.0 + k, wall_reflectivity=0.2 + 0.1 * k
+            )
+            moved = replace(
+                source,
+                position=jnp.array([0.1 * k, 0.2, 0.0]),
+                n_photons=jnp.array(1e4 * (k + 1)),
+            )
+            expected(
+                detector, changed, moved, config=SMALL, key=jax.random.key(k)
+            ).charge.block_until_ready()
+        assert expected_jit._cache_size() == size
 
 
 def test_default_prediction_has_zero_residual():
@@ -237,9 +254,17 @@ def synthetic_event(prediction, seed=3):
 
 
 def loss_function(detector, event, config):
+    """-log L of ``event`` as a function of (params, source). Not one ``jax.jit`` of the
+    whole: the transport runs in ``expected``'s own compiled code (one compilation per
+    detector, dtype, source type and config, shared by every test here that uses them)
+    and the likelihood in a small jitted function of its own. A jitted loss compiles the
+    whole transport again per test (~25 s each on 2 CPU cores) for the same values."""
+    likelihood = jax.jit(
+        lambda prediction, params: nll(prediction, event, params, window=config.window)
+    )
+
     def loss(params, source):
-        prediction = expected(detector, params, source, config=config)
-        return nll(prediction, event, params, window=config.window)
+        return likelihood(expected(detector, params, source, config=config), params)
 
     return loss
 
@@ -291,7 +316,7 @@ def test_gradients_against_finite_differences():
             pulse_width=0.5,
         )
         event = synthetic_event(expected(detector, params, source, config=config))
-        loss = jax.jit(loss_function(detector, event, config))
+        loss = loss_function(detector, event, config)
         grad_params, grad_source = jax.grad(loss, argnums=(0, 1))(params, source)
         failures = []
         for name, index in PARAM_CHECKS:
@@ -326,7 +351,7 @@ def test_loss_scans_are_smooth(field):
         params = scattering_params(detector)
         source = IsotropicSource(position=[0.1, -0.2, 0.3], n_photons=1e4, time=0.0)
         event = synthetic_event(expected(detector, params, source, config=config))
-        loss = jax.jit(loss_function(detector, event, config))
+        loss = loss_function(detector, event, config)
         if field == "x":
             values = np.linspace(-0.4, 0.6, 50)
             scan = [
