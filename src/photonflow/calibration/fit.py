@@ -16,7 +16,7 @@ from ..geometry.detector import Detector
 from ..params import PARAM_SPECS, Params, from_unconstrained, validate_params
 from ..transport.optics import TransportConfig
 from .layout import FreeLayout, free_layout
-from .methods import make_method
+from .methods import make_method, sigma_step_size, take_step
 from .objective import CalibrationProblem
 from .result import CalibrationResult
 from .runs import prepare_runs, run_provenance
@@ -125,14 +125,8 @@ def _independent_ray_steps(
         )
         newton = newton.positive()
         step_dense, step_sensor = newton.solve(-grad_dense, -grad_sensor)
-        dense_var, sensor_var = newton.covariance()
-        sigma = np.concatenate([np.sqrt(np.abs(np.diag(dense_var))),
-                                np.sqrt(np.abs(sensor_var)).ravel()])
-        moved = np.concatenate([np.abs(step_dense), np.abs(step_sensor).ravel()])
-        size = float(np.max(moved / np.where(sigma > 0, sigma, np.inf), initial=0.0))
-        dtype = jnp.result_type(*theta.values())
-        delta = problem.layout.join(jnp.asarray(step_dense, dtype), jnp.asarray(step_sensor, dtype))
-        theta = {name: theta[name] + delta[name] for name in theta}
+        size = sigma_step_size(newton, step_dense, step_sensor)
+        theta = take_step(problem, theta, step_dense, step_sensor)
         _refuse_runaway(theta, len(history))
         values = _dense_values(problem, problem.params_of(theta))
         history.append({"iteration": len(history), "loss": loss, "stage": "independent rays",

@@ -64,6 +64,24 @@ def _dtype(theta: dict):
     return jnp.result_type(*theta.values())
 
 
+def take_step(problem: CalibrationProblem, theta: dict, step_dense, step_sensor) -> dict:
+    """``theta`` moved by a step given as (dense (P,), per-sensor (N, F)) numpy arrays."""
+    dtype = _dtype(theta)
+    delta = problem.layout.join(jnp.asarray(step_dense, dtype), jnp.asarray(step_sensor, dtype))
+    return _add(theta, delta)
+
+
+def sigma_step_size(curvature, step_dense, step_sensor) -> float:
+    """Largest |step| of a free value in units of its 1-sigma error from ``curvature``'s
+    inverse (0 where that error is 0)."""
+    dense_var, sensor_var = curvature.covariance()
+    sigma = np.concatenate(
+        [np.sqrt(np.abs(np.diag(dense_var))), np.sqrt(np.abs(sensor_var)).ravel()]
+    )
+    moved = np.concatenate([np.abs(step_dense), np.abs(step_sensor).ravel()])
+    return float(np.max(moved / np.where(sigma > 0, sigma, np.inf), initial=0.0))
+
+
 def _predicted_decrease(curvature, grad_dense, grad_sensor, step_dense, step_sensor) -> float:
     """Decrease of -log L that the quadratic model g.d + d.H.d / 2 predicts for step d."""
     full = curvature.multiply(step_dense, step_sensor)
@@ -100,13 +118,9 @@ class GaussNewton:
         value, grad_dense, grad_sensor, curvature = problem.curvature(theta)
         curvature = curvature.positive()
         damping = state["damping"]
-        dtype = _dtype(theta)
         for _ in range(self.max_retries):
             step_dense, step_sensor = curvature.damped(damping).solve(-grad_dense, -grad_sensor)
-            delta = problem.layout.join(
-                jnp.asarray(step_dense, dtype), jnp.asarray(step_sensor, dtype)
-            )
-            candidate = _add(theta, delta)
+            candidate = take_step(problem, theta, step_dense, step_sensor)
             new_value = problem.value(candidate)
             if np.isfinite(new_value) and new_value <= value:
                 predicted = _predicted_decrease(
@@ -114,12 +128,7 @@ class GaussNewton:
                 )
                 ratio = (value - new_value) / predicted if predicted > 0 else 1.0
                 factor = 1.0 / 3.0 if ratio > 0.75 else (2.0 if ratio < 0.25 else 1.0)
-                dense_var, sensor_var = curvature.covariance()
-                sigma = np.concatenate(
-                    [np.sqrt(np.abs(np.diag(dense_var))), np.sqrt(np.abs(sensor_var)).ravel()]
-                )
-                moved = np.concatenate([np.abs(step_dense), np.abs(step_sensor).ravel()])
-                size = float(np.max(moved / np.where(sigma > 0, sigma, np.inf), initial=0.0))
+                size = sigma_step_size(curvature, step_dense, step_sensor)
                 new_state = {
                     "damping": min(max(damping * factor, 1e-9), 1e9), "curvature": curvature
                 }

@@ -456,6 +456,16 @@ class CalibrationProblem:
             gradient = grad if gradient is None else jax.tree.map(jnp.add, gradient, grad)
         return total, gradient
 
+    def _summed(self, results) -> tuple[float, list[np.ndarray]]:
+        """(-log L, the other parts summed over runs in float64) of per-run results
+        (terms, *parts)."""
+        value, sums = self.constant, None
+        for terms, *run in results:
+            value += _total(terms)
+            run = [np.asarray(x, dtype=np.float64) for x in run]
+            sums = run if sums is None else [s + x for s, x in zip(sums, run, strict=True)]
+        return value, sums
+
     @property
     def has_independent_rays(self) -> bool:
         """True when ``independent_ray_curvature`` applies: the charge
@@ -469,12 +479,7 @@ class CalibrationProblem:
         expected Fisher information of the likelihood (charge, or charge and first-hit
         time). Arrays in float64 numpy."""
         parts = _fisher_jit if self.likelihood == "charge" else _event_fisher_jit
-        value, sums = self.constant, None
-        for terms, *run in self._each(parts, theta):
-            value += _total(terms)
-            run = [np.asarray(x, dtype=np.float64) for x in run]
-            sums = run if sums is None else [s + x for s, x in zip(sums, run, strict=True)]
-        grad_dense, grad_sensor, a, c, b = sums
+        value, (grad_dense, grad_sensor, a, c, b) = self._summed(self._each(parts, theta))
         return value, grad_dense, grad_sensor, StructuredMatrix(a, c, b)
 
     def independent_ray_curvature(
@@ -493,17 +498,14 @@ class CalibrationProblem:
                 "independent rays: need the charge likelihood, a free field that changes"
                 " the light transport and n_bounces > 0"
             )
-        value, sums = self.constant, None
-        for data, cached, static, key in zip(
-            self.arrays, self.cached, self.statics, self.jacobian_keys, strict=True
-        ):
-            terms, *run = _independent_ray_jit(
+        value, (grad_dense, grad_sensor, *blocks) = self._summed(
+            _independent_ray_jit(
                 theta, self.base, self.sensors, data, cached, static=static, jacobian_key=key
             )
-            value += _total(terms)
-            run = [np.asarray(x, dtype=np.float64) for x in run]
-            sums = run if sums is None else [s + x for s, x in zip(sums, run, strict=True)]
-        grad_dense, grad_sensor, *blocks = sums
+            for data, cached, static, key in zip(
+                self.arrays, self.cached, self.statics, self.jacobian_keys, strict=True
+            )
+        )
         return (value, grad_dense, grad_sensor, StructuredMatrix(*blocks[:3]),
                 StructuredMatrix(*blocks[3:]))
 
