@@ -25,38 +25,61 @@ from photonflow.transport.pseudo_data import sample_events
 OPTICS = ["absorption_length", "scattering_length", "wall_reflectivity", "sensor_reflectivity"]
 
 
-def _random_structured(rng, n=7, f=2, p=3) -> StructuredMatrix:
-    """A random symmetric positive-definite matrix with per-sensor block structure."""
-    jac_dense = rng.normal(size=(n, 4, p))
-    jac_sensor = rng.normal(size=(n, 4, f))
-    a = np.einsum("nkp,nkq->pq", jac_dense, jac_dense) + np.eye(p)
-    c = np.einsum("nkf,nkp->nfp", jac_sensor, jac_dense)
-    b = np.einsum("nkf,nkg->nfg", jac_sensor, jac_sensor) + np.eye(f)
-    return StructuredMatrix(a, c, b)
+def _random_structured(rng, n=7, f=2, p=3, symmetric=True) -> StructuredMatrix:
+    """A random positive-definite matrix with per-sensor block structure; with
+    ``symmetric=False`` the product of two different Jacobians (like the derivative of
+    the independent-ray score), not symmetric."""
+    left_dense, left_sensor = rng.normal(size=(n, 4, p)), rng.normal(size=(n, 4, f))
+    right_dense, right_sensor = left_dense, left_sensor
+    if not symmetric:
+        right_dense = left_dense + 0.5 * rng.normal(size=(n, 4, p))
+        right_sensor = left_sensor + 0.5 * rng.normal(size=(n, 4, f))
+    a = np.einsum("nkp,nkq->pq", left_dense, right_dense) + np.eye(p)
+    c = np.einsum("nkf,nkp->nfp", left_sensor, right_dense)
+    b = np.einsum("nkf,nkg->nfg", left_sensor, right_sensor) + np.eye(f)
+    c_upper = None if symmetric else np.einsum("nkp,nkf->nfp", left_dense, right_sensor)
+    return StructuredMatrix(a, c, b, c_upper)
 
 
-def test_structured_solve_and_covariance_match_dense_algebra():
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_structured_solve_and_covariance_match_dense_algebra(symmetric):
     rng = np.random.default_rng(3)
-    matrix = _random_structured(rng)
+    matrix = _random_structured(rng, symmetric=symmetric)
     full = matrix.dense_matrix()
+    assert np.allclose(full, full.T) == symmetric
+    np.testing.assert_allclose(matrix.transpose().dense_matrix(), full.T, rtol=1e-12)
     dense_rhs, sensor_rhs = rng.normal(size=3), rng.normal(size=(7, 2))
     x_dense, x_sensor = matrix.solve(dense_rhs, sensor_rhs)
     expected = np.linalg.solve(full, np.concatenate([dense_rhs, sensor_rhs.ravel()]))
     np.testing.assert_allclose(np.concatenate([x_dense, x_sensor.ravel()]), expected, rtol=1e-10)
+    product = np.concatenate([part.ravel() for part in matrix.multiply(x_dense, x_sensor)])
+    np.testing.assert_allclose(product, np.concatenate([dense_rhs, sensor_rhs.ravel()]),
+                               rtol=1e-9, atol=1e-12)
     inverse = np.linalg.inv(full)
     dense_cov, sensor_var = matrix.covariance()
     np.testing.assert_allclose(dense_cov, inverse[:3, :3], rtol=1e-10)
     np.testing.assert_allclose(sensor_var.ravel(), np.diag(inverse)[3:], rtol=1e-10)
 
 
-def test_sandwich_covariance_dense_block_matches_dense_algebra():
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_sandwich_covariance_dense_block_matches_dense_algebra(symmetric):
+    """D^-1 (V + sum_r s_r s_r^T) D^-T against the dense matrices."""
     rng = np.random.default_rng(4)
-    newton, information = _random_structured(rng), _random_structured(rng)
-    m_inverse = np.linalg.inv(newton.dense_matrix())
-    expected = (m_inverse @ information.dense_matrix() @ m_inverse)[:3, :3]
-    dense_cov, sensor_var = SandwichCovariance(newton, information).covariance()
-    np.testing.assert_allclose(dense_cov, expected, rtol=1e-10)
+    newton = _random_structured(rng, symmetric=symmetric)
+    information = _random_structured(rng)
+    noise_dense, noise_sensor = rng.normal(size=(5, 3)), rng.normal(size=(5, 7, 2))
+    samples = np.concatenate([noise_dense, noise_sensor.reshape(5, -1)], axis=1)
+    d_inverse = np.linalg.inv(newton.dense_matrix())
+    data = (d_inverse @ information.dense_matrix() @ d_inverse.T)[:3, :3]
+    noise = (d_inverse @ samples.T @ samples @ d_inverse.T)[:3, :3]
+    without = SandwichCovariance(newton, information)
+    dense_cov, sensor_var = without.covariance()
+    np.testing.assert_allclose(dense_cov, data, rtol=1e-10)
     np.testing.assert_allclose(sensor_var, newton.covariance()[1], rtol=1e-12)
+    with_noise = SandwichCovariance(newton, information, noise_dense, noise_sensor)
+    np.testing.assert_allclose(with_noise.covariance()[0], data + noise, rtol=1e-10)
+    np.testing.assert_allclose(with_noise.noise_share(),
+                               np.diag(noise) / np.diag(data + noise), rtol=1e-10)
 
 
 @pytest.mark.parametrize("mu", [1e-3, 1e-2])

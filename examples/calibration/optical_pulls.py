@@ -104,10 +104,15 @@ def main() -> None:
     for name in OPTICS:
         fitted = np.array([row["fitted"][name] for row in rows])
         errors = np.array([row["error"][name] for row in rows])
-        mean, width = pull_summary(np.array([row["pull"][name] for row in rows]))
+        # a fit at the edge of the range has an infinite error and no meaningful pull
+        finite = np.isfinite(errors)
+        mean, width = pull_summary(np.array([row["pull"][name] for row in rows])[finite])
         print(f"{name:22s} {TRUTH[name]:8.4g} {np.mean(fitted) - TRUTH[name]:+9.3g}"
-              f" {np.std(fitted, ddof=1):9.3g} {np.mean(errors):9.3g} {mean:+9.2f} {width:10.2f}")
-    pooled = np.array([row["pull"][k] for row in rows for k in OPTICS])
+              f" {np.std(fitted, ddof=1):9.3g} {np.mean(errors[finite]):9.3g} {mean:+9.2f}"
+              f" {width:10.2f}" + (f"  ({np.sum(~finite)} at the edge of the range,"
+                                   " left out)" if not finite.all() else ""))
+    pooled = np.array([row["pull"][k] for row in rows for k in OPTICS
+                       if np.isfinite(row["error"][k])])
     mean, width = pull_summary(pooled)
     times = [row["wall_time_s"] for row in rows]
     print(f"all pulls pooled: mean {mean:+.2f}, width {width:.2f} ({pooled.size} pulls);"

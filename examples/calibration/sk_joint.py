@@ -79,9 +79,12 @@ def experiment(detector, seed: int, photons: float, rays: int, free: list[str]) 
     print(f"seed {seed}: pseudo-data, {len(runs)} runs in {simulated:.0f} s (sampled mode)",
           flush=True)
 
+    fit_began = time.perf_counter()
+
     def report(iteration, loss, values):
         shown = ", ".join(f"{k} {v:.4g}" for k, v in values.items())
-        print(f"  iteration {iteration}: -log L {loss:.2f}  {shown}", flush=True)
+        print(f"  iteration {iteration} ({time.perf_counter() - fit_began:.0f} s):"
+              f" -log L {loss:.2f}  {shown}", flush=True)
 
     result = calibrate(detector, runs, start, free, config=config, truth=truth,
                        callback=report, key=jax.random.key(seed))
@@ -90,15 +93,21 @@ def experiment(detector, seed: int, photons: float, rays: int, free: list[str]) 
            "fit_s": result.wall_time_s, "optics": {}}
     print(f"fit: {result.message}; {row['iterations']} iterations,"
           f" {result.wall_time_s:.0f} s wall")
+    # the minimum of -log L: the last entry before the independent-ray stage
+    minimum = [entry for entry in result.history if "stage" not in entry][-1]["values"]
+    share = result.history[-1].get("ray_noise_share", {})
     for name in result.free:
         if name == "efficiency":
             continue
         fitted, error = float(getattr(result.params, name)), float(getattr(result.errors, name))
         true = float(getattr(truth, name))
         row["optics"][name] = {"fitted": fitted, "error": error, "true": true,
-                               "pull": (fitted - true) / error}
+                               "pull": (fitted - true) / error,
+                               "likelihood_minimum": minimum[name],
+                               "ray_noise_share": share.get(name)}
         print(f"  {name:22s} {fitted:10.4g} +- {error:.2g}   true {true:.4g}"
-              f"   pull {(fitted - true) / error:+.2f}")
+              f"   pull {(fitted - true) / error:+.2f}"
+              + (f"   ray-noise share of the variance {share[name]:.2f}" if share else ""))
     if "efficiency" in result.free:
         error = np.asarray(result.params.efficiency) - np.asarray(truth.efficiency)
         bound = np.asarray(result.errors.efficiency)

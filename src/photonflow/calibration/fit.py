@@ -16,7 +16,7 @@ from ..geometry.detector import Detector
 from ..params import PARAM_SPECS, Params, from_unconstrained, validate_params
 from ..transport.optics import TransportConfig
 from .layout import FreeLayout, free_layout
-from .methods import make_method, sigma_step_size, take_step
+from .methods import GaussNewton, make_method, sigma_step_size, take_step
 from .objective import CalibrationProblem
 from .result import CalibrationResult
 from .runs import prepare_runs, run_provenance
@@ -74,8 +74,16 @@ def _refuse_runaway(theta: dict, iteration: int) -> None:
         )
 
 
+#: A free value whose physical units change by less than this per unit of its
+#: unconstrained coordinate sits at the edge of its range (a probability at 0 or 1, an
+#: efficiency at 0): its error is reported as infinite, since a linearised error there
+#: is meaningless.
+BOUNDARY_SLOPE = 1e-9
+
+
 def _physical_errors(problem: CalibrationProblem, theta: dict, curvature) -> tuple:
-    """(errors ``Params`` in physical units, dense correlation matrix)."""
+    """(errors ``Params`` in physical units, dense correlation matrix); inf for a value
+    at the edge of its range (``BOUNDARY_SLOPE``)."""
     layout = problem.layout
     dense_cov, sensor_var = curvature.covariance()
     sigma_dense = np.sqrt(np.abs(np.diag(dense_cov)))
@@ -92,8 +100,9 @@ def _physical_errors(problem: CalibrationProblem, theta: dict, curvature) -> tup
             # a flat direction stays infinite where the map to physical units is flat too
             # (a probability saturated at 0 or 1), instead of 0 x inf = nan
             sigma = np.asarray(sigma_theta[spec.name], np.float64)
+            at_edge = np.isinf(sigma) | (np.abs(value) < BOUNDARY_SLOPE)
             with np.errstate(invalid="ignore"):
-                errors[spec.name] = np.where(np.isinf(sigma), np.inf, np.abs(value) * sigma)
+                errors[spec.name] = np.where(at_edge, np.inf, np.abs(value) * sigma)
         else:
             errors[spec.name] = np.zeros_like(value)
     return Params.from_dict(errors), correlation
@@ -102,6 +111,11 @@ def _physical_errors(problem: CalibrationProblem, theta: dict, curvature) -> tup
 #: Newton steps of the independent-ray stage before it is reported as not converged.
 INDEPENDENT_RAY_STEPS = 10
 
+#: Gauss-Newton hands over to the independent-ray stage once its step is below this many
+#: sigma: the stage moves the optics by several sigma from the minimum of -log L, so
+#: polishing that minimum further is wasted work.
+HANDOVER_SIGMA = 1.0
+
 
 def _independent_ray_steps(
     problem: CalibrationProblem, theta: dict, history: list, started: float,
@@ -109,36 +123,44 @@ def _independent_ray_steps(
 ) -> tuple[dict, SandwichCovariance, bool, str]:
     """Newton steps from the minimum of -log L to the root of the independent-ray score
     (``CalibrationProblem.independent_ray_curvature``); stops when every free value
-    moves by less than ``step_tolerance`` sigma. Appends to ``history`` (``"stage":
-    "independent rays"``). Returns (theta, the root's covariance, converged, message).
+    moves by less than ``step_tolerance`` sigma (of the data's noise). Appends to
+    ``history`` (``"stage": "independent rays"``; the last entry also has
+    ``"ray_noise_share"``: the fraction of each dense free value's variance that is the
+    expected mode's ray noise rather than the data's). Returns (theta, the root's
+    covariance with the ray noise, ``CalibrationProblem.ray_noise_covariance``,
+    converged, message).
 
     The minimum of -log L with the expected mode's ray noise is biased: the noise of the
     expected charges M and of their derivatives J comes from the same rays, and their
     correlation shifts the optical parameters by many sigma at campaign statistics
     (docs/calibration.md). The root of the score with J from independent rays has no
-    such correlation; Newton steps on the symmetrised cross information reach it in a
-    few steps."""
-    size = np.inf
-    for count in range(1, INDEPENDENT_RAY_STEPS + 1):
-        loss, grad_dense, grad_sensor, newton, information = (
-            problem.independent_ray_curvature(theta)
-        )
-        newton = newton.positive()
-        step_dense, step_sensor = newton.solve(-grad_dense, -grad_sensor)
-        size = sigma_step_size(newton, step_dense, step_sensor)
+    such correlation; Newton steps on the score's expected derivative reach it in a few
+    steps."""
+    size, converged, count = np.inf, False, 0
+    while not converged and count < INDEPENDENT_RAY_STEPS:
+        count += 1
+        parts = problem.independent_ray_curvature(theta)
+        step_dense, step_sensor = parts.newton.solve(-parts.grad_dense, -parts.grad_sensor)
+        size = sigma_step_size(parts.covariance(), step_dense, step_sensor)
         theta = take_step(problem, theta, step_dense, step_sensor)
         _refuse_runaway(theta, len(history))
         values = _dense_values(problem, problem.params_of(theta))
-        history.append({"iteration": len(history), "loss": loss, "stage": "independent rays",
-                        "time_s": time.perf_counter() - started, "values": values})
+        history.append({"iteration": len(history), "loss": parts.loss,
+                        "stage": "independent rays", "time_s": time.perf_counter() - started,
+                        "values": values})
         if callback is not None:
-            callback(len(history) - 1, loss, values)
-        if size < step_tolerance:
-            return theta, SandwichCovariance(newton, information), True, (
-                f"converged: the independent-ray score's Newton step was {size:.2g} sigma"
-                f" < {step_tolerance:g} after {count} step(s) from the minimum of -log L"
-            )
-    return theta, SandwichCovariance(newton, information), False, (
+            callback(len(history) - 1, parts.loss, values)
+        converged = size < step_tolerance
+    covariance = problem.ray_noise_covariance(theta, parts)
+    history[-1]["ray_noise_share"] = dict(zip(
+        problem.layout.dense_names(), map(float, covariance.noise_share()), strict=True
+    ))
+    if converged:
+        return theta, covariance, True, (
+            f"converged: the independent-ray score's Newton step was {size:.2g} sigma"
+            f" < {step_tolerance:g} after {count} step(s) from the minimum of -log L"
+        )
+    return theta, covariance, False, (
         f"the independent-ray Newton steps did not settle within {INDEPENDENT_RAY_STEPS}"
         f" steps (last {size:.2g} sigma)"
     )
@@ -243,6 +265,7 @@ def calibrate(
     history = [{"iteration": 0, "loss": problem.value(theta), "time_s": 0.0,
                 "values": _dense_values(problem, problem.params_of(theta))}]
     converged, message = False, f"stopped at max_iterations = {max_iterations}"
+    handover = problem.has_independent_rays and isinstance(step_rule, GaussNewton)
     for iteration in range(1, int(max_iterations) + 1):
         theta, state, step = step_rule.update(problem, theta, state)
         _refuse_runaway(theta, iteration)
@@ -252,9 +275,15 @@ def calibrate(
         if callback is not None:
             callback(iteration, step.loss, values)
         if step.loss_change == 0.0 and step.step_size == 0.0:
-            converged = step_rule.__class__.__name__ == "GaussNewton"
+            converged = isinstance(step_rule, GaussNewton)
             message = "no step lowers -log L further" + (
                 "" if converged else f" ({step_rule.__class__.__name__})"
+            )
+            break
+        if handover and step.step_size < HANDOVER_SIGMA:
+            converged, message = True, (
+                f"handed over: the largest step was {step.step_size:.2g} < "
+                f"{HANDOVER_SIGMA:g} sigma"
             )
             break
         if step.loss_change < loss_tolerance and step.step_size < step_tolerance:
@@ -273,6 +302,11 @@ def calibrate(
         loss, _, _, curvature = problem.curvature(theta)
     params = problem.params_of(theta)
     errors, correlation = _physical_errors(problem, theta, curvature)
+    edge = [name for name in layout.dense_fields
+            if not np.all(np.isfinite(np.asarray(getattr(errors, name))))]
+    if edge:
+        message += (f"; {', '.join(edge)}: at the edge of the parameter range or"
+                    " unconstrained (error inf)")
     return CalibrationResult(
         params=params,
         errors=errors,

@@ -60,7 +60,7 @@ from .information import (
 )
 from .layout import FreeLayout
 from .runs import RunData
-from .structured import StructuredMatrix
+from .structured import SandwichCovariance, StructuredMatrix
 
 
 def without_response(params: Params) -> Params:
@@ -127,9 +127,45 @@ TIME_FIELDS = frozenset({"time_offset", "tts"})
 #: charges, ``CalibrationProblem.independent_ray_curvature``).
 JACOBIAN_RAY_STREAM = 0x4A4143
 
+#: ``fold_in`` tag of a run's further ray sets: their expected charges estimate the ray
+#: noise of the run's own (``CalibrationProblem.ray_noise_covariance``).
+NOISE_RAY_STREAM = 0x4E4F49
+
+#: Ray sets besides the run's own from which ``CalibrationProblem.ray_noise_covariance``
+#: estimates the ray noise of the expected charges: the estimate has this many degrees
+#: of freedom per run.
+RAY_NOISE_SETS = 8
+
 #: Events per block when a run's per-event terms are evaluated: bounds the memory of the
 #: charge model's photoelectron sum (``N_TERMS`` values per sensor and event).
 EVENT_BLOCK = 128
+
+
+@dataclasses.dataclass(frozen=True)
+class IndependentRayParts:
+    """The independent-ray estimating equation at one point
+    (``CalibrationProblem.independent_ray_curvature``).
+
+    Attributes:
+        loss: -log L at the point (with the run's own rays).
+        grad_dense: (P,) the score J_b^T dL/dM_a of the dense free entries.
+        grad_sensor: (N, F) the score of the per-sensor free entries.
+        newton: the score's expected derivative I J_b J_a^T (not symmetric).
+        information: the score's data covariance I J_b J_b^T (symmetric).
+        projectors: per run, I J_b (N, T) as a JAX array: a change dM of the run's
+            expected charges changes the score by projector^T dM.
+    """
+
+    loss: float
+    grad_dense: np.ndarray
+    grad_sensor: np.ndarray
+    newton: StructuredMatrix
+    information: StructuredMatrix
+    projectors: tuple
+
+    def covariance(self) -> SandwichCovariance:
+        """The root's covariance from the data's noise alone (no ray noise)."""
+        return SandwichCovariance(self.newton, self.information)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -263,22 +299,34 @@ def _fisher_run(theta, base, sensors, data, cached, static: _Static):
 
 def _independent_ray_run(theta, base, sensors, data, cached, static: _Static, jacobian_key):
     """The independent-ray parts of one run (charge likelihood): M_a, J_a from the run's
-    rays, J_b from the rays of ``jacobian_key``. Returns (terms (N,), score J_b^T dL/dM_a
-    as (P,) and (N, F), the symmetrised cross information I (J_a J_b^T + J_b J_a^T) / 2
-    as blocks A, C, B (the score's derivative, without the noise-squared term that
-    J_b J_b^T carries), and I J_b J_b^T as blocks (the score's covariance))."""
+    rays, J_b from the rays of ``jacobian_key``. Returns (terms (N,); the score
+    J_b^T dL/dM_a as (P,) and (N, F); its expected derivative I J_b J_a^T as blocks
+    A, C, B, C_upper (not symmetric: rows are the score's components, columns the free
+    values); I J_b J_b^T as blocks A, C, B (the score's data covariance); and the
+    projector I J_b (N, T): a change dM of the expected charges changes the score by
+    projector^T dM)."""
     layout = static.layout
+    n_dense = layout.n_dense
     mean, jac_a = _charge_jacobian(theta, base, sensors, data, cached, static)
     _, jac_b = _charge_jacobian(theta, base, sensors, dataclasses.replace(data, key=jacobian_key),
                                 cached, static)
     terms, score = _charge_score(theta, base, data, mean)
-    weight = charge_information(mean, static.spe_width)[:, None, None]
+    fisher = charge_information(mean, static.spe_width)
+    weight = fisher[:, None, None]
     grad = jac_b * score[:, None]
-    cross = jac_a[:, :, None] * jac_b[:, None, :]
-    newton = _blocks(layout, weight * 0.5 * (cross + jnp.swapaxes(cross, 1, 2)))
+    derivative = weight * jac_b[:, :, None] * jac_a[:, None, :]
+    c_upper = jnp.swapaxes(derivative[:, :n_dense, n_dense:], 1, 2)
     information = _blocks(layout, weight * jac_b[:, :, None] * jac_b[:, None, :])
-    return (terms, jnp.sum(grad[:, : layout.n_dense], axis=0), grad[:, layout.n_dense:],
-            *newton, *information)
+    return (terms, jnp.sum(grad[:, :n_dense], axis=0), grad[:, n_dense:],
+            *_blocks(layout, derivative), c_upper, *information, jac_b * fisher[:, None])
+
+
+def _projected_mean(theta, base, sensors, data, cached, static: _Static, projector):
+    """projector^T M for the expected charges M of the run's rays (``data.key``): as
+    (P,) summed over sensors and (N, F) per sensor."""
+    n_dense = static.layout.n_dense
+    projected = projector * _mean(theta, base, sensors, data, cached, static)[:, None]
+    return jnp.sum(projected[:, :n_dense], axis=0), projected[:, n_dense:]
 
 
 def _event_fisher_run(theta, base, sensors, data, cached, static: _Static):
@@ -341,6 +389,7 @@ _value_and_grad_jit = jax.jit(
 )
 _fisher_jit = jax.jit(_fisher_run, static_argnames=("static",))
 _independent_ray_jit = jax.jit(_independent_ray_run, static_argnames=("static",))
+_projected_mean_jit = jax.jit(_projected_mean, static_argnames=("static",))
 _event_fisher_jit = jax.jit(_event_fisher_run, static_argnames=("static",))
 _median_jit = jax.jit(_first_hit_median, static_argnames=("static",))
 
@@ -397,9 +446,12 @@ class CalibrationProblem:
             )
             for index, run in enumerate(runs)
         ]
-        #: per run, the key of its independent ray set (``independent_ray_curvature``)
+        #: per run, the keys of its independent ray sets (``independent_ray_curvature``)
         self.jacobian_keys = [
             jax.random.fold_in(data.key, JACOBIAN_RAY_STREAM) for data in self.arrays
+        ]
+        self.noise_keys = [
+            jax.random.fold_in(data.key, NOISE_RAY_STREAM) for data in self.arrays
         ]
         time_only = per_event and set(layout.names) <= TIME_FIELDS
         self.statics = [
@@ -482,32 +534,62 @@ class CalibrationProblem:
         value, (grad_dense, grad_sensor, a, c, b) = self._summed(self._each(parts, theta))
         return value, grad_dense, grad_sensor, StructuredMatrix(a, c, b)
 
-    def independent_ray_curvature(
-        self, theta: dict
-    ) -> tuple[float, np.ndarray, np.ndarray, StructuredMatrix, StructuredMatrix]:
-        """(-log L, score dense (P,), score per sensor (N, F), Newton matrix, score
-        information) of the independent-ray estimating equation
-        (``has_independent_rays`` only): every run's expected charges M_a come from its
-        own rays and the derivatives J_b from a second, independent ray set; the score
-        is J_b^T dL/dM_a, the Newton matrix the symmetrised I (J_a J_b^T + J_b J_a^T) / 2
-        and the score's covariance I J_b J_b^T (float64 numpy). Its root is free of the
-        bias that the correlated ray noise of M and J puts into the minimum of -log L
-        (docs/calibration.md, "Ray noise and the independent-ray score")."""
+    def independent_ray_curvature(self, theta: dict) -> IndependentRayParts:
+        """The independent-ray estimating equation at ``theta`` (``has_independent_rays``
+        only): every run's expected charges M_a come from its own rays and the
+        derivatives J_b from a second, independent ray set; the score is
+        J_b^T dL/dM_a, the Newton matrix its expected derivative I J_b J_a^T (not
+        symmetric), the score's data covariance I J_b^T J_b. Float64 numpy. The root is
+        free of the bias that the correlated ray noise of M and J puts into the minimum
+        of -log L (docs/calibration.md, "Ray noise and the independent-ray score")."""
         if not self.has_independent_rays:
             raise ConfigError(
                 "independent rays: need the charge likelihood, a free field that changes"
                 " the light transport and n_bounces > 0"
             )
-        value, (grad_dense, grad_sensor, *blocks) = self._summed(
-            _independent_ray_jit(
-                theta, self.base, self.sensors, data, cached, static=static, jacobian_key=key
-            )
-            for data, cached, static, key in zip(
+        per_run = [
+            _independent_ray_jit(theta, self.base, self.sensors, data, cached, static=static,
+                                 jacobian_key=jacobian_key)
+            for data, cached, static, jacobian_key in zip(
                 self.arrays, self.cached, self.statics, self.jacobian_keys, strict=True
             )
+        ]
+        value, (grad_dense, grad_sensor, *blocks) = self._summed(run[:-1] for run in per_run)
+        return IndependentRayParts(
+            value, grad_dense, grad_sensor, StructuredMatrix(*blocks[:4]),
+            StructuredMatrix(*blocks[4:]), tuple(run[-1] for run in per_run),
         )
-        return (value, grad_dense, grad_sensor, StructuredMatrix(*blocks[:3]),
-                StructuredMatrix(*blocks[3:]))
+
+    def ray_noise_covariance(
+        self, theta: dict, parts: IndependentRayParts, n_sets: int = RAY_NOISE_SETS
+    ) -> SandwichCovariance:
+        """The covariance of the independent-ray root: the sandwich of the score's data
+        covariance (``parts.information``) and of its ray-noise covariance, which the
+        rays of M_a add. That is estimated per run from the spread of the projected
+        charges projector^T M over the run's own rays and ``n_sets`` further
+        independent ray sets at ``theta`` (sample covariance, n_sets degrees of
+        freedom; the sets are independent of J_b, so the spread is pure ray noise).
+        ``parts`` from ``independent_ray_curvature`` at (or within a small step of)
+        ``theta``."""
+        noise_dense, noise_sensor = [], []
+        for data, cached, static, key, projector in zip(
+            self.arrays, self.cached, self.statics, self.noise_keys, parts.projectors,
+            strict=True,
+        ):
+            keys = [data.key] + [jax.random.fold_in(key, k) for k in range(n_sets)]
+            samples = [
+                _projected_mean_jit(theta, self.base, self.sensors,
+                                    dataclasses.replace(data, key=k), cached,
+                                    static=static, projector=projector)
+                for k in keys
+            ]
+            dense = np.stack([np.asarray(d, np.float64) for d, _ in samples])
+            sensor = np.stack([np.asarray(x, np.float64) for _, x in samples])
+            scale = 1.0 / np.sqrt(n_sets)  # sum of u u^T = sample covariance (ddof 1)
+            noise_dense.append(scale * (dense - dense.mean(axis=0)))
+            noise_sensor.append(scale * (sensor - sensor.mean(axis=0)))
+        return SandwichCovariance(parts.newton, parts.information,
+                                  np.concatenate(noise_dense), np.concatenate(noise_sensor))
 
     def median_time_shift(self, theta: dict) -> np.ndarray:
         """(N,) ns: per sensor, the median over all runs' hits of (recorded first-hit time
