@@ -162,27 +162,24 @@ class SandwichCovariance:
     noise_dense: np.ndarray | None = None
     noise_sensor: np.ndarray | None = None
 
-    def _dense_rows(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Rows k < P of D^-1, each as (dense (P,), sensor (N, F)): (D^-T e_k)^T."""
+    def _dense_parts(self) -> tuple[np.ndarray, np.ndarray]:
+        """(X V X^T, X R X^T), both (P, P), for X the first P rows of D^-1 (each as
+        (D^-T e_k)^T, a structured solve with D^T)."""
         p = self.newton.a.shape[0]
         n, f = self.newton.b.shape[:2]
         transposed = self.newton.transpose()
-        return [transposed.solve(np.eye(p)[k], np.zeros((n, f))) for k in range(p)]
-
-    def _quadratic(self, rows, noise: bool) -> np.ndarray:
-        """(P, P): rows V rows^T, or rows R rows^T with ``noise``."""
-        if noise:
-            if self.noise_dense is None:
-                return np.zeros((len(rows), len(rows)))
-            projected = np.array([
-                self.noise_dense @ xd + np.einsum("snf,nf->s", self.noise_sensor, xs)
-                for xd, xs in rows
-            ])  # (P, S)
-            return projected @ projected.T
+        rows = [transposed.solve(np.eye(p)[k], np.zeros((n, f))) for k in range(p)]
         images = [self.information.multiply(*row) for row in rows]
-        return np.array([
+        data = np.array([
             [float(xd @ vd + np.sum(xs * vs)) for vd, vs in images] for xd, xs in rows
         ])
+        if self.noise_dense is None:
+            return data, np.zeros_like(data)
+        projected = np.array([
+            self.noise_dense @ xd + np.einsum("snf,nf->s", self.noise_sensor, xs)
+            for xd, xs in rows
+        ])  # (P, S)
+        return data, projected @ projected.T
 
     def covariance(self) -> tuple[np.ndarray, np.ndarray]:
         """(dense covariance (P, P), per-sensor variances (N, F)), as
@@ -190,17 +187,14 @@ class SandwichCovariance:
         newton_dense, sensor = self.newton.covariance()
         if not newton_dense.size or not np.all(np.isfinite(newton_dense)):
             return newton_dense, sensor
-        rows = self._dense_rows()
-        dense = self._quadratic(rows, noise=False) + self._quadratic(rows, noise=True)
+        dense = sum(self._dense_parts())
         return 0.5 * (dense + dense.T), sensor
 
     def noise_share(self) -> np.ndarray:
         """(P,) the fraction of each dense entry's variance that comes from R."""
         if not self.newton.a.size:
             return np.zeros(0)
-        rows = self._dense_rows()
-        data = np.diag(self._quadratic(rows, noise=False))
-        noise = np.diag(self._quadratic(rows, noise=True))
+        data, noise = (np.diag(part) for part in self._dense_parts())
         return noise / (data + noise)
 
 
