@@ -4,6 +4,7 @@ files, bad input, and closure on sampled-mode pseudo-data of a toy detector."""
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -14,11 +15,17 @@ from photonflow.calibration import (
     charge_information,
     load_params,
 )
-from photonflow.calibration.information import gaussian_limit
-from photonflow.calibration.objective import with_response, without_response
+from photonflow.calibration.information import expected_score_curvature, gaussian_limit
+from photonflow.calibration.objective import (
+    ray_noise_score_bias,
+    summed_charge_nll,
+    with_response,
+    without_response,
+)
 from photonflow.calibration.structured import SandwichCovariance, StructuredMatrix
 from photonflow.errors import ConfigError
 from photonflow.io import make_event
+from photonflow.response import single_pe_charges
 from photonflow.transport.optics import TransportConfig
 from photonflow.transport.pseudo_data import sample_events
 
@@ -100,6 +107,48 @@ def test_charge_information_approaches_the_gaussian_limit():
 
     assert relative(90.0) < 0.01
     assert relative(10.0) > relative(90.0)
+
+
+@pytest.mark.parametrize("mean", [0.05, 1.0, 4.0, 30.0, 150.0])
+def test_expected_score_curvature_matches_simulated_data(mean):
+    """E[d^3(-log L)/dM^3] of the summed charge (the second derivative of the score, which
+    sets the Jensen bias of the independent-ray score) from the quadrature table and
+    the Gaussian branch, against its average over 10^5 simulated sensors (Poisson
+    photoelectrons with single-p.e. charges from the response module; the derivative by
+    autodiff of the likelihood itself). Also the counting limit -2/M^2 at small M and
+    the bias 1/2 E[...] Var of ``ray_noise_score_bias``."""
+    width, size = 0.3, 100_000
+    rng = np.random.default_rng(11)
+    counts = rng.poisson(mean, size)
+    charges = np.bincount(np.repeat(np.arange(size), counts),
+                          weights=single_pe_charges(rng, int(counts.sum()), width),
+                          minlength=size)
+    charge_sum = jnp.asarray(charges, jnp.float32)
+    at = jnp.full(size, mean, jnp.float32)
+
+    def score(m):
+        return jax.grad(lambda x: jnp.sum(summed_charge_nll(charge_sum, charge_sum > 0, x,
+                                                             width)))(m)
+
+    def curvature(m):
+        return jax.jvp(score, (m,), (jnp.ones_like(m),))[1]
+
+    third = np.asarray(jax.jvp(curvature, (at,), (jnp.ones_like(at),))[1], np.float64)
+    tabulated = float(expected_score_curvature(jnp.float32(mean), width))
+    error = third.std() / np.sqrt(size)
+    assert abs(tabulated - third.mean()) < 4.0 * error + 0.01 * abs(tabulated), (
+        tabulated, third.mean(), error)
+    variance = 0.04 * mean**2
+    bias = float(ray_noise_score_bias(jnp.float32(mean), jnp.float32(variance), width))
+    assert bias == pytest.approx(0.5 * tabulated * variance, rel=1e-6)
+
+
+def test_expected_score_curvature_of_pure_counting():
+    """At M << 1 a hit is one photoelectron and -log L = M - n log M + const, so
+    E[d^3(-log L)/dM^3] = -2 E[n]/M^3 = -2/M^2."""
+    for mean in (1e-5, 1e-3):
+        value = float(expected_score_curvature(jnp.float32(mean), 0.3))
+        assert value == pytest.approx(-2.0 / mean**2, rel=2e-3)
 
 
 def test_charge_information_of_a_sharp_single_pe_charge_is_poisson():

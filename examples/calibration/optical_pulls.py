@@ -39,9 +39,9 @@ START_FACTORS = {"absorption_length": 1.25, "scattering_length": 0.75,
 
 def study_sources(detector, photons: float) -> list:
     """A laser at 80 % of the half height pointing down, a flash at the centre and one
-    off-centre low (positions m)."""
-    half = 0.5 * float(detector.shape.height)
+    off-centre low (positions m; a sphere's half height is its radius)."""
     radius = float(detector.shape.radius)
+    half = 0.5 * float(getattr(detector.shape, "height", 2.0 * radius))
     return [
         pf.LaserSource(position=[0.0, 0.0, 0.8 * half], direction=[0.0, 0.0, -1.0],
                        opening_angle=0.1, n_photons=photons),
@@ -64,12 +64,18 @@ def main() -> None:
     parser.add_argument("--rays", type=int, default=8192, help="expected-mode rays per run")
     parser.add_argument("--bounces", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0, help="first experiment's seed")
+    parser.add_argument("--free", default=",".join(OPTICS),
+                        help="the optical parameters to fit (the others stay at the truth)")
     parser.add_argument("--out", help="write the per-experiment results to this JSON file")
     args = parser.parse_args()
 
+    free = tuple(args.free.split(","))
+    unknown = sorted(set(free) - set(OPTICS))
+    if unknown:
+        parser.error(f"--free: {', '.join(unknown)}: not one of {', '.join(OPTICS)}")
     detector = pf.load_detector(args.detector)
     truth = pf.default_params(detector).replace(**TRUTH)
-    start = truth.replace(**{k: TRUTH[k] * START_FACTORS[k] for k in OPTICS})
+    start = truth.replace(**{k: TRUTH[k] * START_FACTORS[k] for k in free})
     config = TransportConfig(n_bounces=args.bounces, n_rays=args.rays)
     sources = study_sources(detector, args.photons)
     rows = []
@@ -80,19 +86,19 @@ def main() -> None:
             for k, source in enumerate(sources)
         ]
         began = time.perf_counter()
-        result = calibrate(detector, runs, start, list(OPTICS), config=config, truth=truth,
+        result = calibrate(detector, runs, start, list(free), config=config, truth=truth,
                            key=jax.random.key(10_000 + experiment))
         elapsed = time.perf_counter() - began
         pulls = result.pulls()
         row = {
             "experiment": experiment, "converged": result.converged,
             "iterations": len(result.history) - 1, "wall_time_s": elapsed,
-            "fitted": {k: float(getattr(result.params, k)) for k in OPTICS},
-            "error": {k: float(getattr(result.errors, k)) for k in OPTICS},
-            "pull": {k: float(pulls[k]) for k in OPTICS},
+            "fitted": {k: float(getattr(result.params, k)) for k in free},
+            "error": {k: float(getattr(result.errors, k)) for k in free},
+            "pull": {k: float(pulls[k]) for k in free},
         }
         rows.append(row)
-        shown = "  ".join(f"{k.split('_')[0]} {row['pull'][k]:+.2f}" for k in OPTICS)
+        shown = "  ".join(f"{k.split('_')[0]} {row['pull'][k]:+.2f}" for k in free)
         print(f"experiment {experiment}: {row['iterations']} iterations, {elapsed:.1f} s;"
               f" pulls {shown}", flush=True)
 
@@ -101,7 +107,7 @@ def main() -> None:
           f" {args.bounces} bounces")
     print(f"{'parameter':22s} {'true':>8s} {'bias':>9s} {'spread':>9s} {'mean err':>9s}"
           f" {'pull mean':>9s} {'pull width':>10s}")
-    for name in OPTICS:
+    for name in free:
         fitted = np.array([row["fitted"][name] for row in rows])
         errors = np.array([row["error"][name] for row in rows])
         # a fit at the edge of the range has an infinite error and no meaningful pull
@@ -111,7 +117,7 @@ def main() -> None:
               f" {np.std(fitted, ddof=1):9.3g} {np.mean(errors[finite]):9.3g} {mean:+9.2f}"
               f" {width:10.2f}" + (f"  ({np.sum(~finite)} at the edge of the range,"
                                    " left out)" if not finite.all() else ""))
-    pooled = np.array([row["pull"][k] for row in rows for k in OPTICS
+    pooled = np.array([row["pull"][k] for row in rows for k in free
                        if np.isfinite(row["error"][k])])
     mean, width = pull_summary(pooled)
     times = [row["wall_time_s"] for row in rows]

@@ -126,20 +126,23 @@ def _independent_ray_steps(
     moves by less than ``step_tolerance`` sigma (of the data's noise). Appends to
     ``history`` (``"stage": "independent rays"``; the last entry also has
     ``"ray_noise_share"``: the fraction of each dense free value's variance that is the
-    expected mode's ray noise rather than the data's). Returns (theta, the root's
-    covariance with the ray noise, ``CalibrationProblem.ray_noise_covariance``,
-    converged, message).
+    expected mode's ray noise rather than the data's, and ``"ray_noise_bias"``: the
+    shift, in sigma, by which the second-order bias correction moved each dense free
+    value). Returns (theta, the root's covariance with the ray noise,
+    ``CalibrationProblem.ray_noise_covariance``, converged, message).
 
     The minimum of -log L with the expected mode's ray noise is biased: the noise of the
     expected charges M and of their derivatives J comes from the same rays, and their
     correlation shifts the optical parameters by many sigma at campaign statistics
     (docs/calibration.md). The root of the score with J from independent rays has no
     such correlation; Newton steps on the score's expected derivative reach it in a few
-    steps."""
-    size, converged, count = np.inf, False, 0
+    steps. The first step goes from the minimum to near the root; there the ray-noise
+    sets (``CalibrationProblem.ray_noise_sets``) are drawn once, and the later steps
+    also remove the second-order bias that the ray noise of M puts into dL/dM."""
+    size, converged, count, ray_noise = np.inf, False, 0, None
     while not converged and count < INDEPENDENT_RAY_STEPS:
         count += 1
-        parts = problem.independent_ray_curvature(theta)
+        parts = problem.independent_ray_curvature(theta, ray_noise)
         step_dense, step_sensor = parts.newton.solve(-parts.grad_dense, -parts.grad_sensor)
         size = sigma_step_size(parts.covariance(), step_dense, step_sensor)
         theta = take_step(problem, theta, step_dense, step_sensor)
@@ -150,11 +153,17 @@ def _independent_ray_steps(
                         "values": values})
         if callback is not None:
             callback(len(history) - 1, parts.loss, values)
-        converged = size < step_tolerance
-    covariance = problem.ray_noise_covariance(theta, parts)
-    history[-1]["ray_noise_share"] = dict(zip(
-        problem.layout.dense_names(), map(float, covariance.noise_share()), strict=True
-    ))
+        if ray_noise is None:
+            ray_noise = problem.ray_noise_sets(theta)
+        else:
+            converged = size < step_tolerance
+    covariance = problem.ray_noise_covariance(parts, ray_noise)
+    names = problem.layout.dense_names()
+    shift, _ = parts.newton.solve(parts.bias_dense, parts.bias_sensor)
+    sigma = np.sqrt(np.diag(covariance.covariance()[0]))
+    history[-1]["ray_noise_share"] = dict(zip(names, map(float, covariance.noise_share()),
+                                              strict=True))
+    history[-1]["ray_noise_bias"] = dict(zip(names, map(float, shift / sigma), strict=True))
     if converged:
         return theta, covariance, True, (
             f"converged: the independent-ray score's Newton step was {size:.2g} sigma"

@@ -51,23 +51,75 @@ _scores = jax.jit(
 )
 
 
-@functools.lru_cache(maxsize=16)
-def information_table(spe_width: float) -> tuple[np.ndarray, np.ndarray]:
-    """(log M, M I(M)) on ``N_MU`` points over ``LOG10_MU_RANGE``, for one
-    single-p.e. width (p.e.); M I(M) is dimensionless (1 for pure counting)."""
+def _third_derivative(q, mu, width):
+    """d^3 log p(Q) / dM^3, 1/p.e.^3."""
+    first = jax.grad(_log_density, argnums=1)
+    second = jax.grad(first, argnums=1)
+    return jax.grad(second, argnums=1)(q, mu, width)
+
+
+#: d^3 log p(Q) / dM^3 on an (M, Q) grid: (N_MU, N_CHARGE).
+_third_derivatives = jax.jit(
+    jax.vmap(jax.vmap(_third_derivative, (0, None, None)), (0, 0, None))
+)
+
+
+def _charge_grid(spe_width: float):
+    """The quadrature of the tables: (log M (N_MU,), M (N_MU,), charges Q > 0
+    (N_MU, N_CHARGE) p.e. at the midpoints of N_CHARGE equal steps up to far beyond the
+    charge distribution of M, step (N_MU,) p.e.), and log p(Q) on that grid."""
     log_mu = np.log(np.logspace(*LOG10_MU_RANGE, N_MU))
     mu = np.exp(log_mu)
     mean_one = 1.0 + spe_width  # generous upper reach per photoelectron
     upper = mu * mean_one + 12.0 * np.sqrt(mu * (1.0 + spe_width**2)) + 12.0 * spe_width + 2.0
     fraction = (np.arange(1, N_CHARGE + 1) - 0.5) / N_CHARGE  # midpoints: Q > 0
     charges = upper[:, None] * fraction[None, :]
-    step = upper / N_CHARGE
+    return log_mu, mu, charges, upper / N_CHARGE
 
-    width = jnp.float32(spe_width)
-    log_p, d_log_p = _scores(jnp.asarray(charges, jnp.float32), jnp.asarray(mu, jnp.float32), width)
+
+@functools.lru_cache(maxsize=16)
+def information_table(spe_width: float) -> tuple[np.ndarray, np.ndarray]:
+    """(log M, M I(M)) on ``N_MU`` points over ``LOG10_MU_RANGE``, for one
+    single-p.e. width (p.e.); M I(M) is dimensionless (1 for pure counting)."""
+    log_mu, mu, charges, step = _charge_grid(spe_width)
+    log_p, d_log_p = _scores(jnp.asarray(charges, jnp.float32), jnp.asarray(mu, jnp.float32),
+                             jnp.float32(spe_width))
     log_p, d_log_p = np.asarray(log_p, np.float64), np.asarray(d_log_p, np.float64)
     information = np.exp(-mu) + step * np.sum(np.exp(log_p) * d_log_p**2, axis=1)
     return log_mu, mu * information
+
+
+@functools.lru_cache(maxsize=16)
+def score_curvature_table(spe_width: float) -> tuple[np.ndarray, np.ndarray]:
+    """(log M, M^2 E[d^3(-log L)/dM^3]) on the points of ``information_table``, for one
+    single-p.e. width (p.e.); dimensionless (-2 for pure counting). No hit contributes
+    nothing: there -log L = M."""
+    log_mu, mu, charges, step = _charge_grid(spe_width)
+    q, m, width = (jnp.asarray(charges, jnp.float32), jnp.asarray(mu, jnp.float32),
+                   jnp.float32(spe_width))
+    log_p, _ = _scores(q, m, width)
+    third = np.asarray(_third_derivatives(q, m, width), np.float64)
+    expectation = -step * np.sum(np.exp(np.asarray(log_p, np.float64)) * third, axis=1)
+    return log_mu, mu**2 * expectation
+
+
+def expected_score_curvature(mu: jax.Array, spe_width: float) -> jax.Array:
+    """E[d^3(-log L)/dM^3] of one sensor's summed charge at expected charge M (p.e.),
+    1/p.e.^3, the data drawn at M: the expected second derivative of the score dL/dM,
+    which sets the second-order (Jensen) bias of the score at a noisy M. Tabulated by
+    quadrature of the likelihood's own density (``score_curvature_table``); -2/M^2 for
+    pure counting at small M, and above the table the Gaussian charge model's
+    -3 m1^2/(M^2 (m1^2 + v1)) - 2/M^3. ``spe_width`` in p.e., a Python float. Shape of
+    ``mu``."""
+    log_mu, scaled = score_curvature_table(float(spe_width))
+    mu = jnp.asarray(mu)
+    clipped = jnp.clip(jnp.log(mu), log_mu[0], log_mu[-1])
+    table = jnp.interp(clipped, jnp.asarray(log_mu, mu.dtype),
+                       jnp.asarray(scaled, mu.dtype)) / (mu * mu)
+    with jax.ensure_compile_time_eval():  # constants, also when called under jit
+        mean_one, var_one = (float(x) for x in single_pe_moments(spe_width))
+    gaussian = -3.0 * mean_one**2 / (mu * mu * (mean_one**2 + var_one)) - 2.0 / mu**3
+    return jnp.where(mu > math.exp(log_mu[-1]), gaussian, table)
 
 
 def charge_information(mu: jax.Array, spe_width: float) -> jax.Array:

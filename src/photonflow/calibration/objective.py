@@ -53,9 +53,11 @@ from ..transport.expected import expected_inputs, expected_jit
 from ..transport.optics import TransportConfig
 from .information import (
     charge_information,
+    expected_score_curvature,
     first_hit_quantiles,
     first_hit_scores_information,
     information_table,
+    score_curvature_table,
     time_nodes,
 )
 from .layout import FreeLayout
@@ -148,17 +150,23 @@ class IndependentRayParts:
 
     Attributes:
         loss: -log L at the point (with the run's own rays).
-        grad_dense: (P,) the score J_b^T dL/dM_a of the dense free entries.
+        grad_dense: (P,) the score J_b^T [dL/dM_a - bias] of the dense free entries.
         grad_sensor: (N, F) the score of the per-sensor free entries.
+        bias_dense: (P,) the part J_b^T bias that was subtracted: the second-order
+            (Jensen) bias of dL/dM at ray-sampled charges, 1/2 d^3(-log L)/dM^3 Var(M_a)
+            (zero without ``RayNoiseSets``).
+        bias_sensor: (N, F) the same for the per-sensor free entries.
         newton: the score's expected derivative I J_b J_a^T (not symmetric).
         information: the score's data covariance I J_b J_b^T (symmetric).
-        projectors: per run, I J_b (N, T) as a JAX array: a change dM of the run's
-            expected charges changes the score by projector^T dM.
+        projectors: per run, I J_b (N, T) in float64: a change dM of the run's expected
+            charges changes the score by projector^T dM.
     """
 
     loss: float
     grad_dense: np.ndarray
     grad_sensor: np.ndarray
+    bias_dense: np.ndarray
+    bias_sensor: np.ndarray
     newton: StructuredMatrix
     information: StructuredMatrix
     projectors: tuple
@@ -166,6 +174,31 @@ class IndependentRayParts:
     def covariance(self) -> SandwichCovariance:
         """The root's covariance from the data's noise alone (no ray noise)."""
         return SandwichCovariance(self.newton, self.information)
+
+
+@dataclasses.dataclass(frozen=True)
+class RayNoiseSets:
+    """The ray noise of every run's expected charges M_a, sampled
+    (``CalibrationProblem.ray_noise_sets``).
+
+    Attributes:
+        charges: per run, (N,) p.e.: the mean expected charges over the K ray sets.
+        deviations: per run, (K, N) p.e.: the expected charges of K independent ray sets
+            (the run's own and K - 1 further ones) minus that mean.
+    """
+
+    charges: tuple
+    deviations: tuple
+
+    def relative_variances(self) -> list[np.ndarray]:
+        """Per run, (N,) dimensionless: the sample variance (K - 1 degrees of freedom)
+        of a sensor's expected charges over the ray sets over their mean squared. The
+        relative variance of M_a is what carries over to other parameters: a sensor's
+        efficiency scales its charge and its ray noise alike."""
+        return [
+            np.sum(d**2, axis=0) / (d.shape[0] - 1) / np.maximum(m, 1e-30) ** 2
+            for m, d in zip(self.charges, self.deviations, strict=True)
+        ]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -284,6 +317,15 @@ def _charge_score(theta, base, data, mean):
     return terms, score
 
 
+def ray_noise_score_bias(mean, variance, spe_width: float) -> jax.Array:
+    """(N,) the second-order bias of a run's summed-charge score dL/dM (1/p.e.) when the
+    expected charges are ray-sampled, M_a = M + e with zero-mean ray noise e of variance
+    ``variance`` (p.e.^2): E[dL/dM(M + e)] - E[dL/dM(M)] = 1/2 E[d^3(-log L)/dM^3] Var(e)
+    to second order (Jensen), the expectation over the data at ``mean`` (p.e.;
+    ``expected_score_curvature``). ``spe_width`` in p.e., a Python float."""
+    return 0.5 * expected_score_curvature(mean, spe_width) * variance
+
+
 def _fisher_run(theta, base, sensors, data, cached, static: _Static):
     """(terms (N,), gradient (P,), (N, F), Fisher parts A, C, B) of one run, charge
     likelihood: J from forward-mode derivatives of M, I(M) from ``information``."""
@@ -297,36 +339,35 @@ def _fisher_run(theta, base, sensors, data, cached, static: _Static):
     return terms, jnp.sum(grad[:, : layout.n_dense], axis=0), grad[:, layout.n_dense:], a, c, b
 
 
-def _independent_ray_run(theta, base, sensors, data, cached, static: _Static, jacobian_key):
+def _independent_ray_run(theta, base, sensors, data, cached, static: _Static, jacobian_key,
+                         relative_variance):
     """The independent-ray parts of one run (charge likelihood): M_a, J_a from the run's
-    rays, J_b from the rays of ``jacobian_key``. Returns (terms (N,); the score
-    J_b^T dL/dM_a as (P,) and (N, F); its expected derivative I J_b J_a^T as blocks
-    A, C, B, C_upper (not symmetric: rows are the score's components, columns the free
-    values); I J_b J_b^T as blocks A, C, B (the score's data covariance); and the
-    projector I J_b (N, T): a change dM of the expected charges changes the score by
-    projector^T dM)."""
+    rays, J_b from the rays of ``jacobian_key``; ``relative_variance`` (N,) the variance
+    of M_a's ray noise over M_a^2 (zeros: no bias correction). Returns (terms (N,); the
+    score J_b^T [dL/dM_a - bias] as (P,) and (N, F), bias from
+    ``ray_noise_score_bias``; the
+    subtracted J_b^T bias as (P,) and (N, F); the score's expected derivative
+    I J_b J_a^T as blocks A, C, B, C_upper (not symmetric: rows are the score's
+    components, columns the free values); I J_b J_b^T as blocks A, C, B (the score's
+    data covariance); and the projector I J_b (N, T): a change dM of the expected
+    charges changes the score by projector^T dM)."""
     layout = static.layout
     n_dense = layout.n_dense
     mean, jac_a = _charge_jacobian(theta, base, sensors, data, cached, static)
     _, jac_b = _charge_jacobian(theta, base, sensors, dataclasses.replace(data, key=jacobian_key),
                                 cached, static)
     terms, score = _charge_score(theta, base, data, mean)
+    variance = relative_variance * mean * mean
+    bias = jac_b * ray_noise_score_bias(mean, variance, static.spe_width)[:, None]
     fisher = charge_information(mean, static.spe_width)
     weight = fisher[:, None, None]
-    grad = jac_b * score[:, None]
+    grad = jac_b * score[:, None] - bias
     derivative = weight * jac_b[:, :, None] * jac_a[:, None, :]
     c_upper = jnp.swapaxes(derivative[:, :n_dense, n_dense:], 1, 2)
     information = _blocks(layout, weight * jac_b[:, :, None] * jac_b[:, None, :])
     return (terms, jnp.sum(grad[:, :n_dense], axis=0), grad[:, n_dense:],
+            jnp.sum(bias[:, :n_dense], axis=0), bias[:, n_dense:],
             *_blocks(layout, derivative), c_upper, *information, jac_b * fisher[:, None])
-
-
-def _projected_mean(theta, base, sensors, data, cached, static: _Static, projector):
-    """projector^T M for the expected charges M of the run's rays (``data.key``): as
-    (P,) summed over sensors and (N, F) per sensor."""
-    n_dense = static.layout.n_dense
-    projected = projector * _mean(theta, base, sensors, data, cached, static)[:, None]
-    return jnp.sum(projected[:, :n_dense], axis=0), projected[:, n_dense:]
 
 
 def _event_fisher_run(theta, base, sensors, data, cached, static: _Static):
@@ -389,7 +430,7 @@ _value_and_grad_jit = jax.jit(
 )
 _fisher_jit = jax.jit(_fisher_run, static_argnames=("static",))
 _independent_ray_jit = jax.jit(_independent_ray_run, static_argnames=("static",))
-_projected_mean_jit = jax.jit(_projected_mean, static_argnames=("static",))
+_mean_jit = jax.jit(_mean, static_argnames=("static",))
 _event_fisher_jit = jax.jit(_event_fisher_run, static_argnames=("static",))
 _median_jit = jax.jit(_first_hit_median, static_argnames=("static",))
 
@@ -430,6 +471,7 @@ class CalibrationProblem:
         self.base = to_unconstrained(init_params)
         spe_width = float(init_params.spe_width)
         information_table(spe_width)  # built here, outside jit (cached)
+        score_curvature_table(spe_width)
         dtype = jnp.result_type(init_params.absorption_length)
         self.sensors = expected_inputs(detector, dtype)
         per_event = likelihood == "charge+time"
@@ -534,60 +576,81 @@ class CalibrationProblem:
         value, (grad_dense, grad_sensor, a, c, b) = self._summed(self._each(parts, theta))
         return value, grad_dense, grad_sensor, StructuredMatrix(a, c, b)
 
-    def independent_ray_curvature(self, theta: dict) -> IndependentRayParts:
+    def independent_ray_curvature(
+        self, theta: dict, ray_noise: RayNoiseSets | None = None
+    ) -> IndependentRayParts:
         """The independent-ray estimating equation at ``theta`` (``has_independent_rays``
         only): every run's expected charges M_a come from its own rays and the
         derivatives J_b from a second, independent ray set; the score is
-        J_b^T dL/dM_a, the Newton matrix its expected derivative I J_b J_a^T (not
-        symmetric), the score's data covariance I J_b^T J_b. Float64 numpy. The root is
-        free of the bias that the correlated ray noise of M and J puts into the minimum
-        of -log L (docs/calibration.md, "Ray noise and the independent-ray score")."""
+        J_b^T [dL/dM_a - bias], the Newton matrix its expected derivative I J_b J_a^T
+        (not symmetric), the score's data covariance I J_b^T J_b. With ``ray_noise``
+        (``ray_noise_sets``, taken at or near ``theta``) the bias is the second-order
+        (Jensen) bias that the ray noise of M_a puts into dL/dM; without it, none. Float64
+        numpy. The root is free of the bias that the correlated ray noise of M and J puts
+        into the minimum of -log L (docs/calibration.md, "Ray noise and the
+        independent-ray score")."""
         if not self.has_independent_rays:
             raise ConfigError(
                 "independent rays: need the charge likelihood, a free field that changes"
                 " the light transport and n_bounces > 0"
             )
+        if ray_noise is None:
+            variances = [jnp.zeros_like(data.charge_sum) for data in self.arrays]
+        else:
+            variances = [jnp.asarray(v, data.charge_sum.dtype) for v, data in zip(
+                ray_noise.relative_variances(), self.arrays, strict=True)]
         per_run = [
             _independent_ray_jit(theta, self.base, self.sensors, data, cached, static=static,
-                                 jacobian_key=jacobian_key)
-            for data, cached, static, jacobian_key in zip(
-                self.arrays, self.cached, self.statics, self.jacobian_keys, strict=True
+                                 jacobian_key=jacobian_key, relative_variance=variance)
+            for data, cached, static, jacobian_key, variance in zip(
+                self.arrays, self.cached, self.statics, self.jacobian_keys, variances,
+                strict=True,
             )
         ]
-        value, (grad_dense, grad_sensor, *blocks) = self._summed(run[:-1] for run in per_run)
+        value, (grad_dense, grad_sensor, bias_dense, bias_sensor, *blocks) = self._summed(
+            run[:-1] for run in per_run
+        )
         return IndependentRayParts(
-            value, grad_dense, grad_sensor, StructuredMatrix(*blocks[:4]),
-            StructuredMatrix(*blocks[4:]), tuple(run[-1] for run in per_run),
+            value, grad_dense, grad_sensor, bias_dense, bias_sensor,
+            StructuredMatrix(*blocks[:4]), StructuredMatrix(*blocks[4:]),
+            tuple(np.asarray(run[-1], np.float64) for run in per_run),
         )
 
+    def ray_noise_sets(self, theta: dict, n_sets: int = RAY_NOISE_SETS) -> RayNoiseSets:
+        """Every run's expected charges at ``theta`` from its own rays and ``n_sets``
+        further independent ray sets (keys ``fold_in(fold_in(run key,
+        NOISE_RAY_STREAM), k)``), as deviations from their mean: a sample of the ray
+        noise of M_a with ``n_sets`` degrees of freedom per run."""
+        means, deviations = [], []
+        for data, cached, static, key in zip(
+            self.arrays, self.cached, self.statics, self.noise_keys, strict=True
+        ):
+            keys = [data.key] + [jax.random.fold_in(key, k) for k in range(n_sets)]
+            charges = np.stack([
+                np.asarray(_mean_jit(theta, self.base, self.sensors,
+                                     dataclasses.replace(data, key=k), cached, static=static),
+                           np.float64)
+                for k in keys
+            ])
+            means.append(charges.mean(axis=0))
+            deviations.append(charges - means[-1])
+        return RayNoiseSets(tuple(means), tuple(deviations))
+
     def ray_noise_covariance(
-        self, theta: dict, parts: IndependentRayParts, n_sets: int = RAY_NOISE_SETS
+        self, parts: IndependentRayParts, ray_noise: RayNoiseSets
     ) -> SandwichCovariance:
         """The covariance of the independent-ray root: the sandwich of the score's data
         covariance (``parts.information``) and of its ray-noise covariance, which the
-        rays of M_a add. That is estimated per run from the spread of the projected
-        charges projector^T M over the run's own rays and ``n_sets`` further
-        independent ray sets at ``theta`` (sample covariance, n_sets degrees of
-        freedom; the sets are independent of J_b, so the spread is pure ray noise).
-        ``parts`` from ``independent_ray_curvature`` at (or within a small step of)
-        ``theta``."""
+        rays of M_a add: per run the sample covariance of projector^T M over the ray sets
+        of ``ray_noise`` (independent of J_b, so their spread is pure ray noise). Both
+        at (or within a small step of) the root."""
+        n_dense = self.layout.n_dense
         noise_dense, noise_sensor = [], []
-        for data, cached, static, key, projector in zip(
-            self.arrays, self.cached, self.statics, self.noise_keys, parts.projectors,
-            strict=True,
-        ):
-            keys = [data.key] + [jax.random.fold_in(key, k) for k in range(n_sets)]
-            samples = [
-                _projected_mean_jit(theta, self.base, self.sensors,
-                                    dataclasses.replace(data, key=k), cached,
-                                    static=static, projector=projector)
-                for k in keys
-            ]
-            dense = np.stack([np.asarray(d, np.float64) for d, _ in samples])
-            sensor = np.stack([np.asarray(x, np.float64) for _, x in samples])
-            scale = 1.0 / np.sqrt(n_sets)  # sum of u u^T = sample covariance (ddof 1)
-            noise_dense.append(scale * (dense - dense.mean(axis=0)))
-            noise_sensor.append(scale * (sensor - sensor.mean(axis=0)))
+        for projector, deviations in zip(parts.projectors, ray_noise.deviations, strict=True):
+            # sum of u u^T over the K sets = sample covariance (K - 1 degrees of freedom)
+            scaled = deviations / np.sqrt(deviations.shape[0] - 1)
+            noise_dense.append(scaled @ projector[:, :n_dense])
+            noise_sensor.append(scaled[:, :, None] * projector[None, :, n_dense:])
         return SandwichCovariance(parts.newton, parts.information,
                                   np.concatenate(noise_dense), np.concatenate(noise_sensor))
 
