@@ -75,10 +75,11 @@ def _refuse_runaway(theta: dict, iteration: int) -> None:
 
 
 #: A free value whose physical units change by less than this per unit of its
-#: unconstrained coordinate sits at the edge of its range (a probability at 0 or 1, an
-#: efficiency at 0): its error is reported as infinite, since a linearised error there
-#: is meaningless.
-BOUNDARY_SLOPE = 1e-9
+#: unconstrained coordinate sits at the edge of its range (a probability within 1e-6 of
+#: 0 or 1, an efficiency below 1e-6): its error is reported as infinite, since a
+#: linearised error there is meaningless (a toy fit that ended at a sensor reflectivity
+#: of 6e-8 had a slope of 6e-8 and a meaningless error of 1e-16).
+BOUNDARY_SLOPE = 1e-6
 
 
 def _physical_errors(problem: CalibrationProblem, theta: dict, curvature) -> tuple:
