@@ -4,6 +4,9 @@
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
+# test files run in this many parallel workers (pytest-xdist; a file stays on one worker,
+# so its module fixtures and compiled functions are shared as in a serial run)
+TEST_WORKERS ?= 2
 
 .PHONY: demo test lint clean
 
@@ -23,7 +26,7 @@ demo: $(VENV)/.installed
 	$(BIN)/photonflow demo
 
 test: $(VENV)/.installed-test
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check .
