@@ -153,8 +153,8 @@ class IndependentRayParts:
         grad_dense: (P,) the score J_b^T [dL/dM_a - bias] of the dense free entries.
         grad_sensor: (N, F) the score of the per-sensor free entries.
         bias_dense: (P,) the part J_b^T bias that was subtracted: the second-order
-            (Jensen) bias of dL/dM at ray-sampled charges, 1/2 d^3(-log L)/dM^3 Var(M_a)
-            (zero without ``RayNoiseSets``).
+            (Jensen) bias of dL/dM at ray-sampled charges, 1/2 E[d^3(-log L)/dM^3]
+            Var(M_a) (zero without ``RayNoiseSets``).
         bias_sensor: (N, F) the same for the per-sensor free entries.
         newton: the score's expected derivative I J_b J_a^T (not symmetric).
         information: the score's data covariance I J_b J_b^T (symmetric).
@@ -344,9 +344,8 @@ def _independent_ray_run(theta, base, sensors, data, cached, static: _Static, ja
     """The independent-ray parts of one run (charge likelihood): M_a, J_a from the run's
     rays, J_b from the rays of ``jacobian_key``; ``relative_variance`` (N,) the variance
     of M_a's ray noise over M_a^2 (zeros: no bias correction). Returns (terms (N,); the
-    score J_b^T [dL/dM_a - bias] as (P,) and (N, F), bias from
-    ``ray_noise_score_bias``; the
-    subtracted J_b^T bias as (P,) and (N, F); the score's expected derivative
+    score J_b^T [dL/dM_a - bias] as (P,) and (N, F), bias from ``ray_noise_score_bias``;
+    the subtracted J_b^T bias as (P,) and (N, F); the score's expected derivative
     I J_b J_a^T as blocks A, C, B, C_upper (not symmetric: rows are the score's
     components, columns the free values); I J_b J_b^T as blocks A, C, B (the score's
     data covariance); and the projector I J_b (N, T): a change dM of the expected
