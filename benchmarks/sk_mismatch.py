@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import photonflow as pf
+from photonflow.calibration.structured import StructuredMatrix
 from photonflow.transport.expected import expected
 from photonflow.transport.optics import TransportConfig
 from photonflow.transport.sampled import grid_for, sample_photons
@@ -75,22 +76,22 @@ def source_rows(detector, truth, sources, pulses: int) -> list[dict]:
 
 
 def optics_shift(rows: list[dict]) -> tuple[np.ndarray, np.ndarray]:
-    """(shift (4,), sigma (4,)) of the optics, efficiencies profiled, physical units."""
-    n_sensors = rows[0]["M"].size
-    a, g = np.zeros((4, 4)), np.zeros(4)
-    b, c, g_sensor = np.zeros(n_sensors), np.zeros((n_sensors, 4)), np.zeros(n_sensors)
+    """(shift (4,), sigma (4,)) of the optics, efficiencies profiled, physical units:
+    the weighted normal equations in the per-sensor block structure of the calibration
+    (``StructuredMatrix``: a sensor's efficiency e_j has dM/de_j = M_j, so its blocks
+    summed over runs are M, J and n - M)."""
+    a, gradient = 0.0, 0.0
+    b, c, gradient_sensor = 0.0, 0.0, 0.0
     for row in rows:
         mean = np.maximum(row["M"], 1e-6)
         difference = row["n"] - row["M"]
-        a += row["J"].T @ (row["J"] / mean[:, None])
-        g += row["J"].T @ (difference / mean)
-        # efficiency e_j: dM/de_j = M_j, so its blocks are M, J and n - M summed over runs
-        b += mean
-        c += row["J"]
-        g_sensor += difference
-    covariance = np.linalg.inv(a - (c / b[:, None]).T @ c)
-    shift = covariance @ (g - (c / b[:, None]).T @ g_sensor)
-    return shift, np.sqrt(np.diag(covariance))
+        a = a + row["J"].T @ (row["J"] / mean[:, None])
+        gradient = gradient + row["J"].T @ (difference / mean)
+        b, c = b + mean, c + row["J"]
+        gradient_sensor = gradient_sensor + difference
+    normal = StructuredMatrix(a, c[:, None, :], b[:, None, None])
+    shift, _ = normal.solve(gradient, gradient_sensor[:, None])
+    return shift, np.sqrt(np.diag(normal.covariance()[0]))
 
 
 def main() -> None:

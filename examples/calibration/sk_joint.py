@@ -70,7 +70,12 @@ SURROGATE_KEYS, SURROGATE_RAYS = 4, 4096
 SURROGATE_STREAM = 0x535552
 
 
-def surrogate_event(detector, truth, source, seed: int, config: TransportConfig):
+def sampled_events(detector, truth, source, seed: int, config: TransportConfig) -> list:
+    """One event of ``source`` in the sampled mode (photon by photon) at ``truth``."""
+    return list(sample_events(detector, truth, source, seed, 1, config=config))
+
+
+def surrogate_events(detector, truth, source, seed: int, config: TransportConfig) -> list:
     """One event drawn around the expected mode at ``truth`` (diagnostic pseudo-data):
     per sensor Poisson(signal + dark p.e.) photoelectrons, each with a single-p.e. charge
     (p.e.); hit times are the source time (the charge likelihood does not use them)."""
@@ -90,8 +95,12 @@ def surrogate_event(detector, truth, source, seed: int, config: TransportConfig)
                                                    float(truth.spe_width)),
                          minlength=counts.size)
     ids = np.flatnonzero(counts)
-    return make_event(ids, charge[ids], np.full(ids.size, float(source.time)),
-                      source_truth(source, seed))
+    return [make_event(ids, charge[ids], np.full(ids.size, float(source.time)),
+                       source_truth(source, seed))]
+
+
+#: ``--pseudo-data`` choices: how a run's events are made.
+PSEUDO_DATA = {"sampled": sampled_events, "expected": surrogate_events}
 
 
 def experiment(detector, seed: int, photons: float, rays: int, free: list[str],
@@ -114,15 +123,9 @@ def experiment(detector, seed: int, photons: float, rays: int, free: list[str],
     sources += [pf.IsotropicSource(position=p, n_photons=photons)
                 for p in grid_positions(detector)]
     began = time.perf_counter()
-    if pseudo_data == "sampled":
-        runs = [
-            (source, list(sample_events(detector, truth, source, 1000 * seed + k, 1,
-                                        config=config)))
-            for k, source in enumerate(sources)
-        ]
-    else:
-        runs = [(source, [surrogate_event(detector, truth, source, 1000 * seed + k, config)])
-                for k, source in enumerate(sources)]
+    make_events = PSEUDO_DATA[pseudo_data]
+    runs = [(source, make_events(detector, truth, source, 1000 * seed + k, config))
+            for k, source in enumerate(sources)]
     simulated = time.perf_counter() - began
     print(f"seed {seed}: pseudo-data, {len(runs)} runs in {simulated:.0f} s"
           f" ({pseudo_data} mode)", flush=True)
@@ -196,7 +199,7 @@ def main() -> None:
     parser.add_argument("--photons", type=float, default=1e6, help="photons per flash")
     parser.add_argument("--rays", type=int, default=1024, help="expected-mode rays per run")
     parser.add_argument("--free", default=",".join([*OPTICS, "efficiency"]))
-    parser.add_argument("--pseudo-data", choices=["sampled", "expected"], default="sampled",
+    parser.add_argument("--pseudo-data", choices=list(PSEUDO_DATA), default="sampled",
                         help="expected: diagnostic Poisson draws around the expected mode")
     parser.add_argument("--out", help="JSON file for the per-experiment numbers")
     args = parser.parse_args()

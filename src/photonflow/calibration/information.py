@@ -67,7 +67,7 @@ _third_derivatives = jax.jit(
 def _charge_grid(spe_width: float):
     """The quadrature of the tables: (log M (N_MU,), M (N_MU,), charges Q > 0
     (N_MU, N_CHARGE) p.e. at the midpoints of N_CHARGE equal steps up to far beyond the
-    charge distribution of M, step (N_MU,) p.e.), and log p(Q) on that grid."""
+    charge distribution of M, step (N_MU,) p.e.)."""
     log_mu = np.log(np.logspace(*LOG10_MU_RANGE, N_MU))
     mu = np.exp(log_mu)
     mean_one = 1.0 + spe_width  # generous upper reach per photoelectron

@@ -16,6 +16,7 @@ optical parameters and 11,146 efficiencies that is milliseconds.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -162,9 +163,11 @@ class SandwichCovariance:
     noise_dense: np.ndarray | None = None
     noise_sensor: np.ndarray | None = None
 
+    @functools.cached_property
     def _dense_parts(self) -> tuple[np.ndarray, np.ndarray]:
         """(X V X^T, X R X^T), both (P, P), for X the first P rows of D^-1 (each as
-        (D^-T e_k)^T, a structured solve with D^T)."""
+        (D^-T e_k)^T, a structured solve with D^T); computed once per instance, since
+        the fit asks for the covariance, the noise share and the errors at the root."""
         p = self.newton.a.shape[0]
         n, f = self.newton.b.shape[:2]
         transposed = self.newton.transpose()
@@ -187,14 +190,14 @@ class SandwichCovariance:
         newton_dense, sensor = self.newton.covariance()
         if not newton_dense.size or not np.all(np.isfinite(newton_dense)):
             return newton_dense, sensor
-        dense = sum(self._dense_parts())
+        dense = sum(self._dense_parts)
         return 0.5 * (dense + dense.T), sensor
 
     def noise_share(self) -> np.ndarray:
         """(P,) the fraction of each dense entry's variance that comes from R."""
         if not self.newton.a.size:
             return np.zeros(0)
-        data, noise = (np.diag(part) for part in self._dense_parts())
+        data, noise = (np.diag(part) for part in self._dense_parts)
         return noise / (data + noise)
 
 
