@@ -148,6 +148,7 @@ def experiment(detector, seed: int, photons: float, rays: int, free: list[str],
     minimum = [entry for entry in result.history if "stage" not in entry][-1]["values"]
     share = result.history[-1].get("ray_noise_share", {})
     correction = result.history[-1].get("ray_noise_bias", {})
+    extrapolation = result.history[-1].get("ray_count_extrapolation", {})
     for name in result.free:
         if name == "efficiency":
             continue
@@ -157,11 +158,13 @@ def experiment(detector, seed: int, photons: float, rays: int, free: list[str],
                                "pull": (fitted - true) / error,
                                "likelihood_minimum": minimum[name],
                                "ray_noise_share": share.get(name),
-                               "ray_noise_bias": correction.get(name)}
+                               "ray_noise_bias": correction.get(name),
+                               "ray_count_extrapolation": extrapolation.get(name)}
         print(f"  {name:22s} {fitted:10.4g} +- {error:.2g}   true {true:.4g}"
               f"   pull {(fitted - true) / error:+.2f}"
               + (f"   ray-noise share of the variance {share[name]:.2f}" if share else "")
-              + (f", its bias correction {correction[name]:+.2f} sigma" if correction else ""))
+              + (f", its bias correction {correction[name]:+.2f} sigma" if correction else "")
+              + (f", extrapolation {extrapolation[name]:+.2f} sigma" if extrapolation else ""))
     if "efficiency" in result.free:
         error = np.asarray(result.params.efficiency) - np.asarray(truth.efficiency)
         bound = np.asarray(result.errors.efficiency)

@@ -17,7 +17,7 @@ from ..params import PARAM_SPECS, Params, from_unconstrained, validate_params
 from ..transport.optics import TransportConfig
 from .layout import FreeLayout, free_layout
 from .methods import GaussNewton, make_method, sigma_step_size, take_step
-from .objective import CalibrationProblem
+from .objective import CalibrationProblem, IndependentRayParts, RayNoiseSets
 from .result import CalibrationResult
 from .runs import prepare_runs, run_provenance
 from .structured import SandwichCovariance, StructuredMatrix
@@ -118,18 +118,70 @@ INDEPENDENT_RAY_STEPS = 10
 HANDOVER_SIGMA = 1.0
 
 
+#: Ray sets over which the expected charges are averaged for the stage's second root:
+#: the root's ray-noise bias falls as 1/(rays), so the roots with one set and with this
+#: many are extrapolated to infinitely many rays.
+EXTRAPOLATION_SETS = 2
+
+
+def _root_steps(
+    problem: CalibrationProblem, theta: dict, history: list, started: float,
+    step_tolerance: float, callback, *, charge_sets: int, ray_noise, stage: str,
+    frozen: IndependentRayParts | None = None,
+) -> tuple[dict, IndependentRayParts, RayNoiseSets, bool, float, int]:
+    """Newton steps to the root of the independent-ray score with M_a averaged over
+    ``charge_sets`` ray sets (``CalibrationProblem.independent_ray_curvature``), until a
+    step moves every free value by less than ``step_tolerance`` sigma. Without
+    ``ray_noise`` the first step is uncorrected and the ray-noise sets are drawn after
+    it. With ``frozen`` (the parts of a nearby point) the steps reuse its Newton matrix
+    and derivatives J_b, and compute only the expected charges
+    (``CalibrationProblem.independent_ray_score``). Appends every step to ``history``
+    with ``"stage": stage``. Returns (theta, the parts of the last step (``frozen`` if
+    given), the ray-noise sets, converged, last step size in sigma, steps)."""
+    size, converged, count, parts = np.inf, False, 0, frozen
+    while not converged and count < INDEPENDENT_RAY_STEPS:
+        count += 1
+        if frozen is None:
+            parts = problem.independent_ray_curvature(theta, ray_noise, charge_sets)
+            loss, grad_dense, grad_sensor = parts.loss, parts.grad_dense, parts.grad_sensor
+        else:
+            loss, grad_dense, grad_sensor = problem.independent_ray_score(
+                theta, frozen.jacobians, ray_noise, charge_sets)
+        step_dense, step_sensor = parts.newton.solve(-grad_dense, -grad_sensor)
+        size = sigma_step_size(parts.covariance(), step_dense, step_sensor)
+        theta = take_step(problem, theta, step_dense, step_sensor)
+        _refuse_runaway(theta, len(history))
+        _record(problem, theta, history, started, callback, loss, stage)
+        if ray_noise is None:
+            ray_noise = problem.ray_noise_sets(theta)
+        else:
+            converged = size < step_tolerance
+    return theta, parts, ray_noise, converged, size, count
+
+
+def _record(problem, theta, history, started, callback, loss, stage) -> None:
+    """Append an iteration at ``theta`` to ``history`` and tell ``callback``."""
+    values = _dense_values(problem, problem.params_of(theta))
+    history.append({"iteration": len(history), "loss": loss, "stage": stage,
+                    "time_s": time.perf_counter() - started, "values": values})
+    if callback is not None:
+        callback(len(history) - 1, loss, values)
+
+
 def _independent_ray_steps(
     problem: CalibrationProblem, theta: dict, history: list, started: float,
     step_tolerance: float, callback,
 ) -> tuple[dict, SandwichCovariance, bool, str]:
-    """Newton steps from the minimum of -log L to the root of the independent-ray score
-    (``CalibrationProblem.independent_ray_curvature``); stops when every free value
-    moves by less than ``step_tolerance`` sigma (of the data's noise). Appends to
-    ``history`` (``"stage": "independent rays"``; the last entry also has
+    """From the minimum of -log L to the root of the independent-ray score
+    (``CalibrationProblem.independent_ray_curvature``), extrapolated to infinitely many
+    rays. Appends to ``history``: the Newton steps (``"stage": "independent rays"``),
+    the steps to the root with ``EXTRAPOLATION_SETS`` ray sets (``"independent rays,
+    K sets"``) and the extrapolated point (``"extrapolated"``, whose entry also has
     ``"ray_noise_share"``: the fraction of each dense free value's variance that is the
-    expected mode's ray noise rather than the data's, and ``"ray_noise_bias"``: the
-    shift, in sigma, by which the second-order bias correction moved each dense free
-    value). Returns (theta, the root's covariance with the ray noise,
+    expected mode's ray noise rather than the data's; ``"ray_noise_bias"``: the shift,
+    in sigma, by which the second-order bias correction moved each dense free value;
+    and ``"ray_count_extrapolation"``: the extrapolation's shift in sigma). Returns
+    (theta, the root's covariance with the ray noise,
     ``CalibrationProblem.ray_noise_covariance``, converged, message).
 
     The minimum of -log L with the expected mode's ray noise is biased: the noise of the
@@ -139,40 +191,62 @@ def _independent_ray_steps(
     such correlation; Newton steps on the score's expected derivative reach it in a few
     steps. The first step goes from the minimum to near the root; there the ray-noise
     sets (``CalibrationProblem.ray_noise_sets``) are drawn once, and the later steps
-    also remove the second-order bias that the ray noise of M puts into dL/dM."""
-    size, converged, count, ray_noise = np.inf, False, 0, None
-    while not converged and count < INDEPENDENT_RAY_STEPS:
-        count += 1
-        parts = problem.independent_ray_curvature(theta, ray_noise)
-        step_dense, step_sensor = parts.newton.solve(-parts.grad_dense, -parts.grad_sensor)
-        size = sigma_step_size(parts.covariance(), step_dense, step_sensor)
-        theta = take_step(problem, theta, step_dense, step_sensor)
-        _refuse_runaway(theta, len(history))
-        values = _dense_values(problem, problem.params_of(theta))
-        history.append({"iteration": len(history), "loss": parts.loss,
-                        "stage": "independent rays", "time_s": time.perf_counter() - started,
-                        "values": values})
-        if callback is not None:
-            callback(len(history) - 1, parts.loss, values)
-        if ray_noise is None:
-            ray_noise = problem.ray_noise_sets(theta)
-        else:
-            converged = size < step_tolerance
+    also remove the second-order (Jensen) bias that the ray noise of M puts into dL/dM.
+    What bias the ray noise leaves in the root is of order 1/(rays), from the noise of
+    M_a (with J_a) and of J_b alike: the root with both averaged over K ray sets
+    (K = ``EXTRAPOLATION_SETS``; ``CalibrationProblem.independent_jacobians``) has 1/K
+    of it, so theta_1 + K/(K - 1) (theta_K - theta_1) has none to that order. Its noise
+    is that of one set for K = 2 (theta_1's own sets cancel: 2 (a + b)/2 - a = b), so
+    theta_1's covariance applies. The steps to theta_K start at theta_1, reuse the
+    Newton matrix of theta_1's last step and the K-set J_b at theta_1, and compute only
+    expected charges: the root of the score with J_b fixed at theta_1 differs from the
+    one with J_b moving along only at the second order of the distance theta_K -
+    theta_1 (a fraction of sigma)."""
+    theta_one, parts, ray_noise, converged, size, count = _root_steps(
+        problem, theta, history, started, step_tolerance, callback,
+        charge_sets=1, ray_noise=None, stage="independent rays",
+    )
+    if not converged:
+        return theta_one, problem.ray_noise_covariance(parts, ray_noise), False, (
+            "the independent-ray Newton steps did not settle within"
+            f" {INDEPENDENT_RAY_STEPS} steps (last {size:.2g} sigma)"
+        )
+    sets = EXTRAPOLATION_SETS
+    frozen = dataclasses.replace(parts, jacobians=problem.independent_jacobians(theta_one, sets))
+    theta_many, _, _, converged, size_many, count_many = _root_steps(
+        problem, theta_one, history, started, step_tolerance, callback,
+        charge_sets=sets, ray_noise=ray_noise, stage=f"independent rays, {sets} sets",
+        frozen=frozen,
+    )
+    layout = problem.layout
+    (one_dense, one_sensor), (many_dense, many_sensor) = (
+        [np.asarray(x, np.float64) for x in layout.split(t)] for t in (theta_one, theta_many)
+    )
+    factor = sets / (sets - 1)
+    shift_dense = factor * (many_dense - one_dense)
+    theta = take_step(problem, theta_one, shift_dense, factor * (many_sensor - one_sensor))
+    _record(problem, theta, history, started, callback, problem.value(theta), "extrapolated")
+
     covariance = problem.ray_noise_covariance(parts, ray_noise)
-    names = problem.layout.dense_names()
-    shift, _ = parts.newton.solve(parts.bias_dense, parts.bias_sensor)
+    names = layout.dense_names()
     sigma = np.sqrt(np.diag(covariance.covariance()[0]))
+    bias, _ = parts.newton.solve(parts.bias_dense, parts.bias_sensor)
     history[-1]["ray_noise_share"] = dict(zip(names, map(float, covariance.noise_share()),
                                               strict=True))
-    history[-1]["ray_noise_bias"] = dict(zip(names, map(float, shift / sigma), strict=True))
-    if converged:
-        return theta, covariance, True, (
-            f"converged: the independent-ray score's Newton step was {size:.2g} sigma"
-            f" < {step_tolerance:g} after {count} step(s) from the minimum of -log L"
+    history[-1]["ray_noise_bias"] = dict(zip(names, map(float, bias / sigma), strict=True))
+    history[-1]["ray_count_extrapolation"] = dict(
+        zip(names, map(float, shift_dense / sigma), strict=True))
+    if not converged:
+        return theta_one, covariance, False, (
+            f"the Newton steps to the root with {sets} ray sets did not settle within"
+            f" {INDEPENDENT_RAY_STEPS} steps (last {size_many:.2g} sigma); not"
+            " extrapolated"
         )
-    return theta, covariance, False, (
-        f"the independent-ray Newton steps did not settle within {INDEPENDENT_RAY_STEPS}"
-        f" steps (last {size:.2g} sigma)"
+    return theta, covariance, True, (
+        f"converged: the independent-ray score's Newton step was {size:.2g} sigma"
+        f" < {step_tolerance:g} after {count} step(s) from the minimum of -log L, and"
+        f" {size_many:.2g} sigma after {count_many} step(s) with {sets} ray sets;"
+        " extrapolated to infinitely many rays"
     )
 
 
@@ -307,7 +381,7 @@ def calibrate(
         theta, curvature, converged, message = _independent_ray_steps(
             problem, theta, history, started, step_tolerance, callback
         )
-        loss = problem.value(theta)
+        loss = history[-1]["loss"] if converged else problem.value(theta)
     else:
         loss, _, _, curvature = problem.curvature(theta)
     params = problem.params_of(theta)

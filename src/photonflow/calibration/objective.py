@@ -133,6 +133,13 @@ JACOBIAN_RAY_STREAM = 0x4A4143
 #: noise of the run's own (``CalibrationProblem.ray_noise_covariance``).
 NOISE_RAY_STREAM = 0x4E4F49
 
+#: ``fold_in`` tag of the further ray sets over which the expected charges M_a, their
+#: derivatives J_a (``independent_ray_curvature(charge_sets=K)``) and the independent
+#: derivatives J_b (``independent_jacobians``) are averaged: the root with K sets of
+#: each has 1/K of the ray-noise bias of the root with one (``fit._independent_ray_steps``
+#: extrapolates the two).
+EXTRA_RAY_STREAM = 0x434852
+
 #: Ray sets besides the run's own from which ``CalibrationProblem.ray_noise_covariance``
 #: estimates the ray noise of the expected charges: the estimate has this many degrees
 #: of freedom per run.
@@ -160,6 +167,8 @@ class IndependentRayParts:
         information: the score's data covariance I J_b J_b^T (symmetric).
         projectors: per run, I J_b (N, T) in float64: a change dM of the run's expected
             charges changes the score by projector^T dM.
+        jacobians: per run, J_b (N, T): the derivatives from the independent ray set
+            (``CalibrationProblem.independent_ray_score`` reuses them).
     """
 
     loss: float
@@ -170,6 +179,7 @@ class IndependentRayParts:
     newton: StructuredMatrix
     information: StructuredMatrix
     projectors: tuple
+    jacobians: tuple
 
     def covariance(self) -> SandwichCovariance:
         """The root's covariance from the data's noise alone (no ray noise)."""
@@ -305,6 +315,12 @@ def _charge_jacobian(theta, base, sensors, data, cached, static: _Static):
     return mean, jac.T
 
 
+def _charge_terms(theta, base, data, mean):
+    """(N,) -log L terms of the summed-charge likelihood at expected charges M (p.e.)."""
+    return summed_charge_nll(data.charge_sum, data.hit_any, mean,
+                             _params_of(theta, base).spe_width)
+
+
 def _charge_score(theta, base, data, mean):
     """(-log L terms (N,), dL/dM (N,)) of the summed-charge likelihood at charges M."""
     spe_width = _params_of(theta, base).spe_width
@@ -326,11 +342,11 @@ def ray_noise_score_bias(mean, variance, spe_width: float) -> jax.Array:
     return 0.5 * expected_score_curvature(mean, spe_width) * variance
 
 
-def _fisher_run(theta, base, sensors, data, cached, static: _Static):
+def _fisher_run(theta, base, data, mean, jac, static: _Static):
     """(terms (N,), gradient (P,), (N, F), Fisher parts A, C, B) of one run, charge
-    likelihood: J from forward-mode derivatives of M, I(M) from ``information``."""
+    likelihood, from its expected charges M (N,) p.e. and their derivatives J (N, T)
+    (``_charge_jacobian``); I(M) from ``information``."""
     layout = static.layout
-    mean, jac = _charge_jacobian(theta, base, sensors, data, cached, static)
     terms, score = _charge_score(theta, base, data, mean)
     weight = charge_information(mean, static.spe_width)
     grad = jac * score[:, None]
@@ -339,34 +355,43 @@ def _fisher_run(theta, base, sensors, data, cached, static: _Static):
     return terms, jnp.sum(grad[:, : layout.n_dense], axis=0), grad[:, layout.n_dense:], a, c, b
 
 
-def _independent_ray_run(theta, base, sensors, data, cached, static: _Static, jacobian_key,
-                         relative_variance):
-    """The independent-ray parts of one run (charge likelihood): M_a, J_a from the run's
-    rays, J_b from the rays of ``jacobian_key``; ``relative_variance`` (N,) the variance
-    of M_a's ray noise over M_a^2 (zeros: no bias correction). Returns (terms (N,); the
-    score J_b^T [dL/dM_a - bias] as (P,) and (N, F), bias from ``ray_noise_score_bias``;
-    the subtracted J_b^T bias as (P,) and (N, F); the score's expected derivative
-    I J_b J_a^T as blocks A, C, B, C_upper (not symmetric: rows are the score's
-    components, columns the free values); I J_b J_b^T as blocks A, C, B (the score's
-    data covariance); and the projector I J_b (N, T): a change dM of the expected
-    charges changes the score by projector^T dM)."""
-    layout = static.layout
-    n_dense = layout.n_dense
-    mean, jac_a = _charge_jacobian(theta, base, sensors, data, cached, static)
-    _, jac_b = _charge_jacobian(theta, base, sensors, dataclasses.replace(data, key=jacobian_key),
-                                cached, static)
+def _independent_ray_score(theta, base, data, mean, jac_b, relative_variance,
+                           static: _Static):
+    """The independent-ray score of one run (charge likelihood) at expected charges M_a
+    (N,) p.e., with derivatives J_b (N, T) from an independent ray set and
+    ``relative_variance`` (N,) the variance of M_a's ray noise over M_a^2 (zeros: no
+    bias correction). Returns (terms (N,); the score J_b^T [dL/dM_a - bias] as (P,) and
+    (N, F), bias from ``ray_noise_score_bias``; the subtracted J_b^T bias as (P,) and
+    (N, F))."""
+    n_dense = static.layout.n_dense
     terms, score = _charge_score(theta, base, data, mean)
     variance = relative_variance * mean * mean
     bias = jac_b * ray_noise_score_bias(mean, variance, static.spe_width)[:, None]
+    grad = jac_b * score[:, None] - bias
+    return (terms, jnp.sum(grad[:, :n_dense], axis=0), grad[:, n_dense:],
+            jnp.sum(bias[:, :n_dense], axis=0), bias[:, n_dense:])
+
+
+def _independent_ray_run(theta, base, data, mean, jac_a, jac_b, relative_variance,
+                         static: _Static):
+    """The independent-ray parts of one run (charge likelihood) from its expected charges
+    M_a (N,) p.e. and their derivatives J_a (N, T) (``_charge_jacobian`` with the run's
+    own rays, or averaged over several ray sets) and the derivatives J_b (N, T) from an
+    independent ray set. Returns (``_independent_ray_score``'s five parts; the score's
+    expected derivative I J_b J_a^T as blocks A, C, B, C_upper (not symmetric: rows are
+    the score's components, columns the free values); I J_b J_b^T as blocks A, C, B
+    (the score's data covariance); and the projector I J_b (N, T): a change dM of the
+    expected charges changes the score by projector^T dM)."""
+    layout = static.layout
+    n_dense = layout.n_dense
+    score = _independent_ray_score(theta, base, data, mean, jac_b, relative_variance, static)
     fisher = charge_information(mean, static.spe_width)
     weight = fisher[:, None, None]
-    grad = jac_b * score[:, None] - bias
     derivative = weight * jac_b[:, :, None] * jac_a[:, None, :]
     c_upper = jnp.swapaxes(derivative[:, :n_dense, n_dense:], 1, 2)
     information = _blocks(layout, weight * jac_b[:, :, None] * jac_b[:, None, :])
-    return (terms, jnp.sum(grad[:, :n_dense], axis=0), grad[:, n_dense:],
-            jnp.sum(bias[:, :n_dense], axis=0), bias[:, n_dense:],
-            *_blocks(layout, derivative), c_upper, *information, jac_b * fisher[:, None])
+    return (*score, *_blocks(layout, derivative), c_upper, *information,
+            jac_b * fisher[:, None])
 
 
 def _event_fisher_run(theta, base, sensors, data, cached, static: _Static):
@@ -429,7 +454,10 @@ _value_and_grad_jit = jax.jit(
 )
 _fisher_jit = jax.jit(_fisher_run, static_argnames=("static",))
 _independent_ray_jit = jax.jit(_independent_ray_run, static_argnames=("static",))
+_independent_ray_score_jit = jax.jit(_independent_ray_score, static_argnames=("static",))
+_charge_jacobian_jit = jax.jit(_charge_jacobian, static_argnames=("static",))
 _mean_jit = jax.jit(_mean, static_argnames=("static",))
+_charge_terms_jit = jax.jit(_charge_terms)
 _event_fisher_jit = jax.jit(_event_fisher_run, static_argnames=("static",))
 _median_jit = jax.jit(_first_hit_median, static_argnames=("static",))
 
@@ -538,8 +566,15 @@ class CalibrationProblem:
             yield function(theta, self.base, self.sensors, data, cached, static=static)
 
     def value(self, theta: dict) -> float:
-        """-log L of all runs at ``theta`` (summed in float64)."""
-        return self.constant + sum(_total(t) for t in self._each(_terms_jit, theta))
+        """-log L of all runs at ``theta`` (summed in float64). The charge likelihood
+        goes through the expected charges (``_mean_jit``), the program that the ray-noise
+        sets compile anyway: one compiled transport fewer."""
+        if self.likelihood != "charge":
+            return self.constant + sum(_total(t) for t in self._each(_terms_jit, theta))
+        return self.constant + sum(
+            _total(_charge_terms_jit(theta, self.base, data, mean))
+            for data, mean in zip(self.arrays, self._each(_mean_jit, theta), strict=True)
+        )
 
     def value_and_grad(self, theta: dict) -> tuple[float, dict]:
         """(-log L, its gradient as a ``theta``-shaped dict)."""
@@ -571,12 +606,20 @@ class CalibrationProblem:
         """(-log L, gradient dense (P,), gradient per sensor (N, F), curvature): the
         expected Fisher information of the likelihood (charge, or charge and first-hit
         time). Arrays in float64 numpy."""
-        parts = _fisher_jit if self.likelihood == "charge" else _event_fisher_jit
-        value, (grad_dense, grad_sensor, a, c, b) = self._summed(self._each(parts, theta))
+        if self.likelihood == "charge":
+            per_run = (
+                _fisher_jit(theta, self.base, data, *jacobian, static=static)
+                for data, static, jacobian in zip(
+                    self.arrays, self.statics, self._each(_charge_jacobian_jit, theta),
+                    strict=True)
+            )
+        else:
+            per_run = self._each(_event_fisher_jit, theta)
+        value, (grad_dense, grad_sensor, a, c, b) = self._summed(per_run)
         return value, grad_dense, grad_sensor, StructuredMatrix(a, c, b)
 
     def independent_ray_curvature(
-        self, theta: dict, ray_noise: RayNoiseSets | None = None
+        self, theta: dict, ray_noise: RayNoiseSets | None = None, charge_sets: int = 1
     ) -> IndependentRayParts:
         """The independent-ray estimating equation at ``theta`` (``has_independent_rays``
         only): every run's expected charges M_a come from its own rays and the
@@ -584,35 +627,89 @@ class CalibrationProblem:
         J_b^T [dL/dM_a - bias], the Newton matrix its expected derivative I J_b J_a^T
         (not symmetric), the score's data covariance I J_b^T J_b. With ``ray_noise``
         (``ray_noise_sets``, taken at or near ``theta``) the bias is the second-order
-        (Jensen) bias that the ray noise of M_a puts into dL/dM; without it, none. Float64
+        (Jensen) bias that the ray noise of M_a puts into dL/dM; without it, none. With
+        ``charge_sets`` = K > 1, M_a and J_a are the averages over the run's own rays and
+        K - 1 further sets (``ray_set_keys``), so
+        their ray noise (and the bias correction) has 1/K of the variance. Float64
         numpy. The root is free of the bias that the correlated ray noise of M and J puts
         into the minimum of -log L (docs/calibration.md, "Ray noise and the
         independent-ray score")."""
-        if not self.has_independent_rays:
-            raise ConfigError(
-                "independent rays: need the charge likelihood, a free field that changes"
-                " the light transport and n_bounces > 0"
-            )
-        if ray_noise is None:
-            variances = [jnp.zeros_like(data.charge_sum) for data in self.arrays]
-        else:
-            variances = [jnp.asarray(v, data.charge_sum.dtype) for v, data in zip(
-                ray_noise.relative_variances(), self.arrays, strict=True)]
-        per_run = [
-            _independent_ray_jit(theta, self.base, self.sensors, data, cached, static=static,
-                                 jacobian_key=jacobian_key, relative_variance=variance)
-            for data, cached, static, jacobian_key, variance in zip(
-                self.arrays, self.cached, self.statics, self.jacobian_keys, variances,
-                strict=True,
-            )
-        ]
+        per_run, jacobians = [], []
+        for data, static, jacobian_key, variance, keys in self._independent_ray_inputs(
+            ray_noise, charge_sets
+        ):
+            sets = [self._jacobian(theta, data, static, key) for key in keys]
+            mean = sum(m for m, _ in sets) / len(sets)
+            jac_a = sum(j for _, j in sets) / len(sets)
+            _, jac_b = self._jacobian(theta, data, static, jacobian_key)
+            jacobians.append(jac_b)
+            per_run.append(_independent_ray_jit(theta, self.base, data, mean, jac_a, jac_b,
+                                                variance, static=static))
         value, (grad_dense, grad_sensor, bias_dense, bias_sensor, *blocks) = self._summed(
             run[:-1] for run in per_run
         )
         return IndependentRayParts(
             value, grad_dense, grad_sensor, bias_dense, bias_sensor,
             StructuredMatrix(*blocks[:4]), StructuredMatrix(*blocks[4:]),
-            tuple(np.asarray(run[-1], np.float64) for run in per_run),
+            tuple(np.asarray(run[-1], np.float64) for run in per_run), tuple(jacobians),
+        )
+
+    def independent_ray_score(
+        self, theta: dict, jacobians: tuple, ray_noise: RayNoiseSets | None = None,
+        charge_sets: int = 1,
+    ) -> tuple[float, np.ndarray, np.ndarray]:
+        """(-log L, score dense (P,), per sensor (N, F)) of
+        ``independent_ray_curvature`` at ``theta`` with the derivatives J_b given (per
+        run, ``IndependentRayParts.jacobians`` of a nearby point): only the expected
+        charges are computed, a third of the cost of their derivatives. For steps that
+        reuse a nearby point's Newton matrix. Float64 numpy."""
+        per_run = []
+        for (data, static, _, variance, keys), jac_b in zip(
+            self._independent_ray_inputs(ray_noise, charge_sets), jacobians, strict=True
+        ):
+            mean = sum(_mean_jit(theta, self.base, self.sensors,
+                                 dataclasses.replace(data, key=key), None, static=static)
+                       for key in keys) / len(keys)
+            per_run.append(_independent_ray_score_jit(theta, self.base, data, mean, jac_b,
+                                                      variance, static=static)[:3])
+        value, (grad_dense, grad_sensor) = self._summed(per_run)
+        return value, grad_dense, grad_sensor
+
+    def _independent_ray_inputs(self, ray_noise: RayNoiseSets | None, charge_sets: int):
+        """Per run (data, static, J_b's key, relative variance of M_a's ray noise over
+        ``charge_sets`` sets, the keys of those sets)."""
+        if not self.has_independent_rays:
+            raise ConfigError(
+                "independent rays: need the charge likelihood, a free field that changes"
+                " the light transport and n_bounces > 0"
+            )
+        if int(charge_sets) < 1:
+            raise ConfigError(f"charge_sets = {charge_sets}: must be >= 1")
+        if ray_noise is None:
+            variances = [jnp.zeros_like(data.charge_sum) for data in self.arrays]
+        else:
+            variances = [jnp.asarray(v / charge_sets, data.charge_sum.dtype) for v, data in zip(
+                ray_noise.relative_variances(), self.arrays, strict=True)]
+        return [
+            (data, static, jacobian_key, variance, ray_set_keys(data.key, charge_sets))
+            for data, static, jacobian_key, variance in zip(
+                self.arrays, self.statics, self.jacobian_keys, variances, strict=True)
+        ]
+
+    def _jacobian(self, theta: dict, data, static: _Static, key):
+        """(M (N,), J (N, T)) of a run with the rays of ``key`` (``_charge_jacobian``)."""
+        return _charge_jacobian_jit(theta, self.base, self.sensors,
+                                    dataclasses.replace(data, key=key), None, static=static)
+
+    def independent_jacobians(self, theta: dict, n_sets: int) -> tuple:
+        """Per run, the derivatives J_b (N, T) of the expected charges at ``theta``
+        averaged over ``n_sets`` independent ray sets: the run's J_b set and
+        ``n_sets`` - 1 further ones (``ray_set_keys``), for ``independent_ray_score``."""
+        return tuple(
+            sum(self._jacobian(theta, data, static, key)[1]
+                for key in ray_set_keys(jacobian_key, n_sets)) / n_sets
+            for data, static, jacobian_key in zip(
+                self.arrays, self.statics, self.jacobian_keys, strict=True)
         )
 
     def ray_noise_sets(self, theta: dict, n_sets: int = RAY_NOISE_SETS) -> RayNoiseSets:
@@ -668,6 +765,14 @@ class CalibrationProblem:
         shift = np.zeros(residuals.shape[1])
         shift[hit] = np.nanmedian(residuals[:, hit], axis=0)
         return shift
+
+
+def ray_set_keys(key, n_sets: int) -> list:
+    """``key`` and ``n_sets`` - 1 further independent keys derived from it
+    (``fold_in(fold_in(key, EXTRA_RAY_STREAM), k)``): the ray sets whose expected charges
+    or derivatives are averaged."""
+    stream = jax.random.fold_in(key, EXTRA_RAY_STREAM)
+    return [key] + [jax.random.fold_in(stream, k) for k in range(int(n_sets) - 1)]
 
 
 @functools.partial(jax.jit, static_argnames=("shape", "config"))

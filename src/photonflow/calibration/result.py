@@ -35,8 +35,12 @@ class CalibrationResult:
         history: one dict per iteration: ``iteration``, ``loss`` (-log L), ``time_s``
             (since the start) and ``values`` (label -> physical value of every dense
             free entry). Steps of the independent-ray stage (charge likelihood with
-            free optics, ``fit.calibrate``) carry ``"stage": "independent rays"`` and
-            the -log L of the point the step started from.
+            free optics, ``fit.calibrate``) carry ``"stage": "independent rays"`` (or
+            ``"independent rays, K sets"`` for the root with K ray sets) and the -log L
+            of the point the step started from; its last entry, ``"stage":
+            "extrapolated"``, is the result, with the diagnostics
+            ``"ray_noise_share"``, ``"ray_noise_bias"`` and
+            ``"ray_count_extrapolation"`` (``fit._independent_ray_steps``).
         free: the free fields.
         method: step rule used ("gauss-newton", "lbfgs", "adam").
         likelihood: "charge" or "charge+time".

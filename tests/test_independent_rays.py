@@ -1,0 +1,94 @@
+"""The independent-ray stage of the calibration (``fit._independent_ray_steps``): the
+averaged ray sets of its second root and the extrapolation of the two roots to
+infinitely many rays (docs/calibration.md, "Ray noise and the independent-ray score")."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+import photonflow as pf
+from photonflow.calibration import calibrate
+from photonflow.calibration.fit import EXTRAPOLATION_SETS
+from photonflow.calibration.layout import free_layout
+from photonflow.calibration.objective import (
+    CalibrationProblem,
+    _mean_jit,
+    ray_set_keys,
+    summed_charge_nll,
+)
+from photonflow.calibration.runs import prepare_runs
+from photonflow.transport.optics import TransportConfig
+from photonflow.transport.pseudo_data import sample_events
+
+CONFIG = TransportConfig(n_bounces=2, n_rays=256)
+FREE = ("absorption_length", "scattering_length")
+TRUTH = {"absorption_length": 30.0, "scattering_length": 20.0, "wall_reflectivity": 0.2}
+
+
+@pytest.fixture(scope="module")
+def toy():
+    """TOY_CYLINDER with strong scattering, two flashes of 2x10^5 photons (sampled mode),
+    and a start 20 % away."""
+    detector = pf.load_detector("TOY_CYLINDER")
+    truth = pf.default_params(detector).replace(**TRUTH)
+    sources = [pf.IsotropicSource(position=[0.0, 0.0, 0.0], n_photons=2e5),
+               pf.IsotropicSource(position=[0.8, 0.0, -0.5], n_photons=2e5)]
+    runs = [(source, list(sample_events(detector, truth, source, 70 + k, 1, config=CONFIG)))
+            for k, source in enumerate(sources)]
+    start = truth.replace(absorption_length=24.0, scattering_length=24.0)
+    return detector, truth, runs, start
+
+
+def test_charge_sets_average_the_expected_charges_of_independent_ray_sets(toy):
+    """With ``charge_sets`` = 2, -log L is that of the average of the expected charges of
+    the run's own rays and of the first further set, and differs from the one-set value
+    (the sets are independent)."""
+    detector, _, runs, start = toy
+    problem = CalibrationProblem(detector, prepare_runs(runs, detector, "charge"), start,
+                                 free_layout(list(FREE), detector.n_sensors), "charge",
+                                 CONFIG, jax.random.key(3))
+    theta = problem.initial_theta()
+    losses = []
+    for sets in (1, 2):
+        total = 0.0
+        for data, static in zip(problem.arrays, problem.statics, strict=True):
+            means = [np.asarray(_mean_jit(theta, problem.base, problem.sensors,
+                                          dataclasses.replace(data, key=key), None,
+                                          static=static), np.float64)
+                     for key in ray_set_keys(data.key, sets)]
+            assert len(means) == sets
+            total += float(np.sum(summed_charge_nll(
+                data.charge_sum, data.hit_any, np.mean(means, axis=0).astype(np.float32),
+                float(start.spe_width))))
+        parts = problem.independent_ray_curvature(theta, charge_sets=sets)
+        np.testing.assert_allclose(parts.loss, total, rtol=1e-5)
+        losses.append(parts.loss)
+    assert abs(losses[1] - losses[0]) > 1e-2, losses  # float32 terms resolve 1e-3
+
+
+def test_fit_extrapolates_the_roots_with_one_and_more_ray_sets(toy):
+    """The history has the one-set steps, then the steps with ``EXTRAPOLATION_SETS``
+    sets, then the extrapolated point, which is theta_1 + K/(K - 1) (theta_K - theta_1)
+    in the fit's coordinates (log of a length), and is the result."""
+    detector, truth, runs, start = toy
+    result = calibrate(detector, runs, start, list(FREE), config=CONFIG, truth=truth,
+                       key=jax.random.key(5))
+    assert result.converged, result.message
+    stages = [entry.get("stage") for entry in result.history]
+    many = f"independent rays, {EXTRAPOLATION_SETS} sets"
+    assert stages[-1] == "extrapolated"
+    first_many = stages.index(many)
+    assert set(stages[stages.index("independent rays"):first_many]) == {"independent rays"}
+    assert set(stages[first_many:-1]) == {many}
+    one = result.history[first_many - 1]["values"]
+    last = result.history[-2]["values"]
+    factor = EXTRAPOLATION_SETS / (EXTRAPOLATION_SETS - 1)
+    for name in FREE:
+        expected = np.exp(np.log(one[name]) + factor * (np.log(last[name]) - np.log(one[name])))
+        assert result.history[-1]["values"][name] == pytest.approx(expected, rel=1e-5)
+        assert float(getattr(result.params, name)) == pytest.approx(expected, rel=1e-5)
+        assert np.isfinite(result.history[-1]["ray_count_extrapolation"][name])
