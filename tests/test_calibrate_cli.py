@@ -111,6 +111,34 @@ def test_report_of_a_per_sensor_field_draws_a_map(fitted, tmp_path):
     assert np.asarray(sensors[0].get_array()) == pytest.approx(np.linspace(-0.1, 0.1, n), abs=1e-6)
 
 
+def test_report_shades_the_independent_ray_stage(fitted):
+    """Iterations with a "stage" (the independent-ray roots, where -log L may rise) are
+    shaded on every iteration axis, from half an iteration before the first to half
+    after the last."""
+    import dataclasses
+
+    from photonflow.geometry.presets import preset_detector
+    from photonflow.viz.calibration_report import plot_calibration_report
+
+    out, _ = fitted
+    result = CalibrationResult.load(out)
+    first = dict(result.history[0])
+    history = [{**first, "iteration": k} for k in range(3)] + [
+        {**first, "iteration": k, "stage": "independent rays"} for k in range(3, 6)]
+    figure = plot_calibration_report(dataclasses.replace(result, history=tuple(history)),
+                                     preset_detector("TOY_CYLINDER"))
+    spans = [p for ax in figure.get_axes() for p in ax.patches
+             if p.get_gid() == "independent-ray stage"]
+    assert len(spans) == 1 + len(result.correlation_names)  # convergence + each value
+    for span in spans:
+        xs = span.get_path().vertices[:, 0] if not hasattr(span, "get_x") else [
+            span.get_x(), span.get_x() + span.get_width()]
+        assert min(xs) == pytest.approx(2.5) and max(xs) == pytest.approx(5.5)
+    unstaged = plot_calibration_report(result, preset_detector("TOY_CYLINDER"))
+    assert not [p for ax in unstaged.get_axes() for p in ax.patches
+                if p.get_gid() == "independent-ray stage"]
+
+
 def test_unknown_free_field_is_one_line_and_writes_nothing(run_file, tmp_path):
     out = tmp_path / "calib.json"
     result = subprocess.run(

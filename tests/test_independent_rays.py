@@ -71,13 +71,15 @@ def test_charge_sets_average_the_expected_charges_of_independent_ray_sets(toy):
 
 
 def test_fit_extrapolates_the_roots_with_one_and_more_ray_sets(toy):
-    """The history has the one-set steps, then the steps with ``EXTRAPOLATION_SETS``
-    sets, then the extrapolated point, which is theta_1 + K/(K - 1) (theta_K - theta_1)
-    in the fit's coordinates (log of a length), and is the result."""
+    """With ``ray_extrapolation`` the history has the one-set steps, then the steps with
+    ``EXTRAPOLATION_SETS`` sets, then the extrapolated point, which is
+    theta_1 + K/(K - 1) (theta_K - theta_1) in the fit's coordinates (log of a length),
+    and is the result. Without it (the default) the result is theta_1."""
     detector, truth, runs, start = toy
     result = calibrate(detector, runs, start, list(FREE), config=CONFIG, truth=truth,
-                       key=jax.random.key(5))
+                       key=jax.random.key(5), ray_extrapolation=True)
     assert result.converged, result.message
+    assert result.settings["ray_extrapolation"] is True
     stages = [entry.get("stage") for entry in result.history]
     many = f"independent rays, {EXTRAPOLATION_SETS} sets"
     assert stages[-1] == "extrapolated"
@@ -92,3 +94,12 @@ def test_fit_extrapolates_the_roots_with_one_and_more_ray_sets(toy):
         assert result.history[-1]["values"][name] == pytest.approx(expected, rel=1e-5)
         assert float(getattr(result.params, name)) == pytest.approx(expected, rel=1e-5)
         assert np.isfinite(result.history[-1]["ray_count_extrapolation"][name])
+
+    plain = calibrate(detector, runs, start, list(FREE), config=CONFIG, truth=truth,
+                      key=jax.random.key(5))
+    assert plain.converged and plain.settings["ray_extrapolation"] is False
+    assert {entry.get("stage") for entry in plain.history} == {None, "independent rays"}
+    assert "ray_noise_share" in plain.history[-1]
+    for name in FREE:  # the same one-set root as the extrapolating fit's
+        assert plain.history[-1]["values"][name] == pytest.approx(one[name], rel=1e-5)
+        assert float(getattr(plain.params, name)) == pytest.approx(one[name], rel=1e-5)

@@ -91,7 +91,7 @@ def main() -> None:
         fit = problem(key)
         history = []
         theta, covariance, converged, _ = _independent_ray_steps(
-            fit, reference, history, 0.0, 0.01, None)
+            fit, reference, history, 0.0, 0.01, None, extrapolate=True)
         sigma = np.sqrt(np.diag(covariance.covariance()[0]))
         last_one = [h for h in history if h["stage"] == "independent rays"][-1]["values"]
         theta_one = layout.select(to_unconstrained(truth.replace(**last_one)))

@@ -21,7 +21,8 @@ fit's. The fit's model is then exact up to its own ray noise, so a bias that rem
 the estimator's; one that goes away is a mismatch of the sampled and the expected mode.
 
     python examples/calibration/sk_joint.py [--seed 1] [--experiments 1] [--photons 1e6]
-        [--rays 1024] [--pseudo-data sampled|expected] [--out sk_pulls.json]
+        [--rays 1024] [--pseudo-data sampled|expected] [--ray-extrapolation]
+        [--out sk_pulls.json]
 """
 
 from __future__ import annotations
@@ -104,7 +105,7 @@ PSEUDO_DATA = {"sampled": sampled_events, "expected": surrogate_events}
 
 
 def experiment(detector, seed: int, photons: float, rays: int, free: list[str],
-               pseudo_data: str = "sampled") -> dict:
+               pseudo_data: str = "sampled", ray_extrapolation: bool = False) -> dict:
     """One pseudo-experiment: pseudo-data with efficiencies and Poisson draws from
     ``seed`` (sampled mode, or the expected mode as a diagnostic), the fit with ray key
     ``seed``; returns the numbers the summary needs."""
@@ -138,7 +139,8 @@ def experiment(detector, seed: int, photons: float, rays: int, free: list[str],
               f" -log L {loss:.2f}  {shown}", flush=True)
 
     result = calibrate(detector, runs, start, free, config=config, truth=truth,
-                       callback=report, key=jax.random.key(seed))
+                       callback=report, key=jax.random.key(seed),
+                       ray_extrapolation=ray_extrapolation)
     row = {"seed": seed, "converged": result.converged, "message": result.message,
            "iterations": len(result.history) - 1, "pseudo_data_s": simulated,
            "fit_s": result.wall_time_s, "optics": {}}
@@ -204,6 +206,8 @@ def main() -> None:
     parser.add_argument("--free", default=",".join([*OPTICS, "efficiency"]))
     parser.add_argument("--pseudo-data", choices=list(PSEUDO_DATA), default="sampled",
                         help="expected: diagnostic Poisson draws around the expected mode")
+    parser.add_argument("--ray-extrapolation", action="store_true",
+                        help="extrapolate the fit's root to infinitely many rays")
     parser.add_argument("--out", help="JSON file for the per-experiment numbers")
     args = parser.parse_args()
 
@@ -211,7 +215,7 @@ def main() -> None:
     rows = []
     for seed in range(args.seed, args.seed + args.experiments):
         rows.append(experiment(detector, seed, args.photons, args.rays, args.free.split(","),
-                               args.pseudo_data))
+                               args.pseudo_data, args.ray_extrapolation))
         if args.out:
             with open(args.out, "w") as handle:
                 json.dump({"settings": vars(args), "experiments": rows}, handle, indent=1)

@@ -497,6 +497,10 @@ def calibrate(
         "--max-iterations", help="Iteration limit.")] = 50,
     report: Annotated[Path | None, typer.Option(
         help="Draw this calibration result (.json) to --out instead of fitting.")] = None,
+    ray_extrapolation: Annotated[bool, typer.Option(
+        "--ray-extrapolation",
+        help="Extrapolate the optics to infinitely many rays (few rays; see"
+             " docs/calibration.md).")] = False,
 ) -> None:
     """Fit detector parameters (absorption and scattering lengths, reflectivities,
     per-sensor efficiency and time offset, ...) to calibration runs and write the result
@@ -516,11 +520,11 @@ def calibrate(
     if not files:
         raise ConfigError("FILE: give at least one event file of a calibration run")
     _calibration_fit(files, out, detector, free, init, method, likelihood, rays, bounces,
-                     max_iterations)
+                     max_iterations, ray_extrapolation)
 
 
 def _calibration_fit(files, out, detector, free, init, method, likelihood, rays, bounces,
-                     max_iterations) -> None:
+                     max_iterations, ray_extrapolation: bool = False) -> None:
     """``calibrate FILE... --out``: read the runs, fit with a live display, print the
     table, save the result."""
     from rich.live import Live
@@ -565,6 +569,7 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
                 setup.detector, runs.runs, start, list(layout.names), method=method,
                 likelihood=likelihood, config=config, truth=runs.truth,
                 max_iterations=max_iterations, callback=_FitProgress(live),
+                ray_extrapolation=ray_extrapolation,
             )
     console().print(calibration_rich_table(result))
     try:

@@ -118,7 +118,8 @@ def calibration_run_step(name: str) -> Step:
         dark = dark_expectation(setup.params, config.window) * setup.detector.n_sensors
         expected_charge = float((np.sum(prediction.charge) + dark) * mean_one)
         return StepResult(
-            f"{CALIBRATION_EVENTS} flashes of {CALIBRATION_PHOTONS:.0e} photons in {name}:"
+            f"one calibration run of {CALIBRATION_EVENTS} central flashes of"
+            f" {CALIBRATION_PHOTONS:.0e} photons in {name}:"
             f" total charge {np.mean(charges):,.0f} p.e. per event sampled,"
             f" {expected_charge:,.0f} expected; event display in {picture}",
             (path, picture),
@@ -204,7 +205,8 @@ def optics_calibration_step(name: str) -> Step:
         pulls = result.pulls()
         worst = max(free, key=lambda field: abs(float(pulls[field])))
         return StepResult(
-            f"{len(free)} optical parameters from {len(runs)} runs of {photons:.0e} photons"
+            f"{len(free)} optical parameters from {len(runs)} further runs (a downward laser"
+            f" and two flashes, one pulse of {photons:.0e} photons each)"
             f" in {result.history[-1]['iteration']} iterations"
             f" ({'converged' if result.converged else result.message}); largest pull"
             f" {worst} {float(np.asarray(pulls[worst])):+.2f}; report in {picture}",

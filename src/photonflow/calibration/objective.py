@@ -323,10 +323,9 @@ def _charge_terms(theta, base, data, mean):
 
 def _charge_score(theta, base, data, mean):
     """(-log L terms (N,), dL/dM (N,)) of the summed-charge likelihood at charges M."""
-    spe_width = _params_of(theta, base).spe_width
 
     def total(m):
-        terms = summed_charge_nll(data.charge_sum, data.hit_any, m, spe_width)
+        terms = _charge_terms(theta, base, data, m)
         return jnp.sum(terms), terms
 
     (_, terms), score = jax.value_and_grad(total, has_aux=True)(mean)

@@ -96,6 +96,7 @@ def plot_calibration_report(
         ax.plot(iterations, excess, marker="o", color="C0")
         if np.nanmax(excess) > 10.0:  # large first steps: keep the last ones visible
             ax.set_yscale("symlog", linthresh=1.0)
+    _mark_stage(ax, history, label="independent-ray stage\n(roots, not minima)")
     ax.set_xlabel("iteration")
     ax.set_ylabel("-log L - minimum")
     ax.set_title("convergence", fontsize=10)
@@ -105,6 +106,7 @@ def plot_calibration_report(
         ax.set_visible(True)
         values = np.array([step["values"].get(label, np.nan) for step in history], np.float64)
         ax.plot(iterations, values, marker="o", color="C1", label="fit")
+        _mark_stage(ax, history)
         fitted = _label_value(result.params, label)
         error = _label_value(result.errors, label)
         if iterations.size:
@@ -134,6 +136,18 @@ def plot_calibration_report(
     if path is not None:
         save_figure(figure, path)
     return figure
+
+
+def _mark_stage(ax, history: list, label: str | None = None) -> None:
+    """Shade the iterations of the independent-ray stage (entries with a ``"stage"``),
+    where -log L is not minimised and may rise by design."""
+    staged = [step["iteration"] for step in history if "stage" in step]
+    if staged:
+        ax.axvspan(min(staged) - 0.5, max(staged) + 0.5, color="0.85", alpha=0.5,
+                   linewidth=0, zorder=0, gid="independent-ray stage")
+        if label:
+            ax.text(min(staged) - 0.4, 0.98, label, transform=ax.get_xaxis_transform(),
+                    fontsize=7, va="top", color="0.3")
 
 
 def _draw_pulls(ax, result, labels: list[str]) -> None:
