@@ -196,13 +196,15 @@ def _independent_ray_steps(
     What bias the ray noise leaves in the root is of order 1/(rays), from the noise of
     M_a (with J_a) and of J_b alike: the root with both averaged over K ray sets
     (K = ``EXTRAPOLATION_SETS``; ``CalibrationProblem.independent_jacobians``) has 1/K
-    of it, so theta_1 + K/(K - 1) (theta_K - theta_1) has none to that order. Its noise
-    is that of one set for K = 2 (theta_1's own sets cancel: 2 (a + b)/2 - a = b), so
-    theta_1's covariance applies. The steps to theta_K start at theta_1, reuse the
-    Newton matrix of theta_1's last step and the K-set J_b at theta_1, and compute only
-    expected charges: the root of the score with J_b fixed at theta_1 differs from the
-    one with J_b moving along only at the second order of the distance theta_K -
-    theta_1 (a fraction of sigma)."""
+    of it, so theta_1 + K/(K - 1) (theta_K - theta_1) has none to that order. To first
+    order in the noise its noise is that of one set for K = 2 (theta_1's own sets
+    cancel: 2 (a + b)/2 - a = b), so theta_1's covariance is returned; where the root
+    responds to J_b's noise non-linearly (SK at 1,024 rays) the extrapolated root
+    scatters more than that (pull widths 1.25-1.32, docs/calibration.md). The steps to
+    theta_K start at theta_1, reuse the Newton matrix of theta_1's last step and the
+    K-set J_b at theta_1, and compute only expected charges: the root of the score with
+    J_b fixed at theta_1 differs from the one with J_b moving along only at the second
+    order of the distance theta_K - theta_1 (a fraction of sigma)."""
     theta_one, parts, ray_noise, converged, size, count = _root_steps(
         problem, theta, history, started, step_tolerance, callback,
         charge_sets=1, ray_noise=None, stage="independent rays",
