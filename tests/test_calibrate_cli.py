@@ -80,6 +80,25 @@ def test_calibrate_writes_a_result_with_the_free_parameter(fitted, run_file):
     assert json.loads(out.read_text())["format"] == "photonflow-calibration"
 
 
+def test_ray_extrapolation_flag_reaches_the_fit(run_file, tmp_path):
+    """``--ray-extrapolation`` is recorded in the result's settings (the default fit
+    records False); without indirect light there is no independent-ray stage, so the
+    history has no stage entries either way."""
+    out = tmp_path / "calib.json"
+    result = invoke("calibrate", run_file, "--detector", "TOY_CYLINDER",
+                    "--free", "quantum_efficiency", "--rays", "512", "--max-iterations", "3",
+                    "--ray-extrapolation", "--out", out)
+    assert result.exit_code == 0, result.output
+    loaded = CalibrationResult.load(out)
+    assert loaded.settings["ray_extrapolation"] is True
+    assert not [entry for entry in loaded.history if "stage" in entry]
+
+
+def test_default_fit_records_no_ray_extrapolation(fitted):
+    out, _ = fitted
+    assert CalibrationResult.load(out).settings["ray_extrapolation"] is False
+
+
 def test_report_is_a_png(fitted, tmp_path):
     out, _ = fitted
     picture = tmp_path / "report.png"
