@@ -628,11 +628,10 @@ class CalibrationProblem:
         (``ray_noise_sets``, taken at or near ``theta``) the bias is the second-order
         (Jensen) bias that the ray noise of M_a puts into dL/dM; without it, none. With
         ``charge_sets`` = K > 1, M_a and J_a are the averages over the run's own rays and
-        K - 1 further sets (``ray_set_keys``), so
-        their ray noise (and the bias correction) has 1/K of the variance. Float64
-        numpy. The root is free of the bias that the correlated ray noise of M and J puts
-        into the minimum of -log L (docs/calibration.md, "Ray noise and the
-        independent-ray score")."""
+        K - 1 further sets (``ray_set_keys``), so their ray noise (and the bias
+        correction) has 1/K of the variance. Float64 numpy. The root is free of the bias
+        that the correlated ray noise of M and J puts into the minimum of -log L
+        (docs/calibration.md, "Ray noise and the independent-ray score")."""
         per_run, jacobians = [], []
         for data, static, jacobian_key, variance, keys in self._independent_ray_inputs(
             ray_noise, charge_sets
