@@ -40,7 +40,7 @@ from photonflow.calibration.structured import StructuredMatrix
 from photonflow.transport.optics import TransportConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "calibration"))
-from sk_joint import OPTICS, TRUE_OPTICS, grid_positions, sampled_events  # noqa: E402
+from sk_joint import OPTICS, campaign_sources, campaign_truth, sampled_events  # noqa: E402
 
 
 def information_slope(mean: np.ndarray, spe_width: float) -> np.ndarray:
@@ -57,13 +57,9 @@ def main() -> None:
     ray_sets = int(sys.argv[2]) if len(sys.argv) > 2 else 4
     began = time.perf_counter()
     detector = pf.load_detector("SK")
-    rng = np.random.default_rng(seed)
-    truth = pf.default_params(detector).replace(
-        **TRUE_OPTICS, efficiency=rng.normal(1.0, 0.1, detector.n_sensors))
+    truth = campaign_truth(detector, seed)
     config = TransportConfig(n_bounces=2, n_rays=1024)
-    sources = [pf.LaserSource(position=[0.0, 0.0, 0.0], direction=[0.0, 0.0, -1.0],
-                              opening_angle=0.2, n_photons=1e6)]
-    sources += [pf.IsotropicSource(position=p, n_photons=1e6) for p in grid_positions(detector)]
+    sources = campaign_sources(detector, 1e6)
     # the bias is an expectation; the data only make the problem (its score is not used)
     runs = prepare_runs([(s, sampled_events(detector, truth, s, 1000 * seed + k, config))
                          for k, s in enumerate(sources)], detector, "charge")

@@ -33,7 +33,7 @@ from photonflow.transport.optics import TransportConfig
 from photonflow.transport.sampled import grid_for, sample_photons
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "calibration"))
-from sk_joint import OPTICS, TRUE_OPTICS, grid_positions  # noqa: E402
+from sk_joint import OPTICS, TRUE_OPTICS, campaign_sources  # noqa: E402
 
 RAY_KEYS = 8
 CONFIG = TransportConfig(n_bounces=2, n_rays=4096)
@@ -98,10 +98,7 @@ def main() -> None:
     pulses = int(sys.argv[1]) if len(sys.argv) > 1 else 20
     detector = pf.load_detector("SK")
     truth = pf.default_params(detector).replace(**TRUE_OPTICS)
-    sources = [pf.LaserSource(position=[0.0, 0.0, 0.0], direction=[0.0, 0.0, -1.0],
-                              opening_angle=0.2, n_photons=1e6)]
-    sources += [pf.IsotropicSource(position=p, n_photons=1e6)
-                for p in grid_positions(detector)]
+    sources = campaign_sources(detector, 1e6)
     rows = source_rows(detector, truth, sources, pulses)
     shift, sigma = optics_shift(rows)
     print(f"\nshift / sigma, all sources (statistical error {1 / np.sqrt(pulses):.2f}):")

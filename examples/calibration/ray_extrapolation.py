@@ -90,7 +90,7 @@ def main() -> None:
     for key in range(args.keys):
         fit = problem(key)
         history = []
-        theta, covariance, converged, _ = _independent_ray_steps(
+        theta, _, covariance, converged, _ = _independent_ray_steps(
             fit, reference, history, 0.0, 0.01, None, extrapolate=True)
         sigma = np.sqrt(np.diag(covariance.covariance()[0]))
         last_one = [h for h in history if h["stage"] == "independent rays"][-1]["values"]

@@ -64,6 +64,23 @@ def grid_positions(detector) -> list[list[float]]:
     return points
 
 
+def campaign_truth(detector, seed: int):
+    """The true ``Params`` of pseudo-experiment ``seed``: ``TRUE_OPTICS`` and per-sensor
+    efficiencies drawn with a 10 % spread."""
+    rng = np.random.default_rng(seed)
+    return pf.default_params(detector).replace(
+        **TRUE_OPTICS, efficiency=rng.normal(1.0, 0.1, detector.n_sensors))
+
+
+def campaign_sources(detector, photons: float) -> list:
+    """The campaign's 16 sources: a downward laser at the centre (0.2 rad opening) and
+    isotropic flashes at ``grid_positions``, ``photons`` each."""
+    sources = [pf.LaserSource(position=[0.0, 0.0, 0.0], direction=[0.0, 0.0, -1.0],
+                              opening_angle=0.2, n_photons=photons)]
+    return sources + [pf.IsotropicSource(position=p, n_photons=photons)
+                      for p in grid_positions(detector)]
+
+
 #: Ray sets and rays per set of the expected-mode pseudo-data (``--pseudo-data expected``):
 #: 16 times the fit's 1,024 rays, so their ray noise is ~1/16 of the fit's.
 SURROGATE_KEYS, SURROGATE_RAYS = 4, 4096
@@ -110,8 +127,7 @@ def experiment(detector, seed: int, photons: float, rays: int, free: list[str],
     ``seed`` (sampled mode, or the expected mode as a diagnostic), the fit with ray key
     ``seed``; returns the numbers the summary needs."""
     nominal = pf.default_params(detector)
-    rng = np.random.default_rng(seed)
-    truth = nominal.replace(**TRUE_OPTICS, efficiency=rng.normal(1.0, 0.1, detector.n_sensors))
+    truth = campaign_truth(detector, seed)
     start = nominal.replace(
         absorption_length=float(truth.absorption_length) * 1.25,
         scattering_length=float(truth.scattering_length) * 0.75,
@@ -119,10 +135,7 @@ def experiment(detector, seed: int, photons: float, rays: int, free: list[str],
         sensor_reflectivity=float(truth.sensor_reflectivity) * 1.25,
     )
     config = TransportConfig(n_bounces=2, n_rays=rays)
-    sources = [pf.LaserSource(position=[0.0, 0.0, 0.0], direction=[0.0, 0.0, -1.0],
-                              opening_angle=0.2, n_photons=photons)]
-    sources += [pf.IsotropicSource(position=p, n_photons=photons)
-                for p in grid_positions(detector)]
+    sources = campaign_sources(detector, photons)
     began = time.perf_counter()
     make_events = PSEUDO_DATA[pseudo_data]
     runs = [(source, make_events(detector, truth, source, 1000 * seed + k, config))

@@ -159,11 +159,13 @@ def _root_steps(
     return theta, parts, ray_noise, converged, size, count
 
 
-def _record(problem, theta, history, started, callback, loss, stage) -> None:
-    """Append an iteration at ``theta`` to ``history`` and tell ``callback``."""
+def _record(problem, theta, history, started, callback, loss, stage=None) -> None:
+    """Append an iteration at ``theta`` to ``history`` (with ``"stage"`` when given) and
+    tell ``callback``."""
     values = _dense_values(problem, problem.params_of(theta))
-    history.append({"iteration": len(history), "loss": loss, "stage": stage,
-                    "time_s": time.perf_counter() - started, "values": values})
+    entry = {"iteration": len(history), "loss": loss,
+             "time_s": time.perf_counter() - started, "values": values}
+    history.append(entry if stage is None else {**entry, "stage": stage})
     if callback is not None:
         callback(len(history) - 1, loss, values)
 
@@ -171,7 +173,7 @@ def _record(problem, theta, history, started, callback, loss, stage) -> None:
 def _independent_ray_steps(
     problem: CalibrationProblem, theta: dict, history: list, started: float,
     step_tolerance: float, callback, extrapolate: bool = False,
-) -> tuple[dict, SandwichCovariance, bool, str]:
+) -> tuple[dict, float, SandwichCovariance, bool, str]:
     """From the minimum of -log L to the root of the independent-ray score
     (``CalibrationProblem.independent_ray_curvature``), with ``extrapolate`` extrapolated
     to infinitely many rays. Appends to ``history`` the Newton steps (``"stage":
@@ -182,7 +184,7 @@ def _independent_ray_steps(
     expected mode's ray noise rather than the data's; ``"ray_noise_bias"``: the shift,
     in sigma, by which the second-order bias correction moved each dense free value;
     and with ``extrapolate`` ``"ray_count_extrapolation"``: the extrapolation's shift
-    in sigma. Returns (theta, the root's covariance with the ray noise,
+    in sigma. Returns (theta, -log L there, the root's covariance with the ray noise,
     ``CalibrationProblem.ray_noise_covariance``, converged, message).
 
     The minimum of -log L with the expected mode's ray noise is biased: the noise of the
@@ -212,14 +214,14 @@ def _independent_ray_steps(
     covariance = problem.ray_noise_covariance(parts, ray_noise)
     _record_ray_noise(problem, history[-1], parts, covariance)
     if not converged:
-        return theta_one, covariance, False, (
+        return theta_one, problem.value(theta_one), covariance, False, (
             "the independent-ray Newton steps did not settle within"
             f" {INDEPENDENT_RAY_STEPS} steps (last {size:.2g} sigma)"
         )
     message = (f"converged: the independent-ray score's Newton step was {size:.2g} sigma"
                f" < {step_tolerance:g} after {count} step(s) from the minimum of -log L")
     if not extrapolate:
-        return theta_one, covariance, True, message
+        return theta_one, problem.value(theta_one), covariance, True, message
     sets = EXTRAPOLATION_SETS
     frozen = dataclasses.replace(parts, jacobians=problem.independent_jacobians(theta_one, sets))
     theta_many, _, _, converged, size_many, count_many = _root_steps(
@@ -229,7 +231,7 @@ def _independent_ray_steps(
     )
     if not converged:
         _record_ray_noise(problem, history[-1], parts, covariance)
-        return theta_one, covariance, False, (
+        return theta_one, problem.value(theta_one), covariance, False, (
             f"the Newton steps to the root with {sets} ray sets did not settle within"
             f" {INDEPENDENT_RAY_STEPS} steps (last {size_many:.2g} sigma); not"
             " extrapolated"
@@ -241,12 +243,13 @@ def _independent_ray_steps(
     factor = sets / (sets - 1)
     shift_dense = factor * (many_dense - one_dense)
     theta = take_step(problem, theta_one, shift_dense, factor * (many_sensor - one_sensor))
-    _record(problem, theta, history, started, callback, problem.value(theta), "extrapolated")
+    loss = problem.value(theta)
+    _record(problem, theta, history, started, callback, loss, "extrapolated")
     _record_ray_noise(problem, history[-1], parts, covariance)
     sigma = np.sqrt(np.diag(covariance.covariance()[0]))
     history[-1]["ray_count_extrapolation"] = dict(
         zip(layout.dense_names(), map(float, shift_dense / sigma), strict=True))
-    return theta, covariance, True, (
+    return theta, loss, covariance, True, (
         f"{message}, and {size_many:.2g} sigma after {count_many} step(s) with {sets} ray"
         " sets; extrapolated to infinitely many rays"
     )
@@ -376,11 +379,7 @@ def calibrate(
     for iteration in range(1, int(max_iterations) + 1):
         theta, state, step = step_rule.update(problem, theta, state)
         _refuse_runaway(theta, iteration)
-        values = _dense_values(problem, problem.params_of(theta))
-        history.append({"iteration": iteration, "loss": step.loss,
-                        "time_s": time.perf_counter() - started, "values": values})
-        if callback is not None:
-            callback(iteration, step.loss, values)
+        _record(problem, theta, history, started, callback, step.loss)
         if step.loss_change == 0.0 and step.step_size == 0.0:
             converged = isinstance(step_rule, GaussNewton)
             message = "no step lowers -log L further" + (
@@ -401,10 +400,9 @@ def calibrate(
             break
 
     if problem.has_independent_rays and converged:
-        theta, curvature, converged, message = _independent_ray_steps(
+        theta, loss, curvature, converged, message = _independent_ray_steps(
             problem, theta, history, started, step_tolerance, callback, ray_extrapolation
         )
-        loss = problem.value(theta)
     else:
         loss, _, _, curvature = problem.curvature(theta)
     params = problem.params_of(theta)

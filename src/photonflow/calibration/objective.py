@@ -252,9 +252,7 @@ def _run_terms(theta, base, sensors, data, cached, static: _Static):
     (charge+time: all terms, or only the first-hit time or only the charge terms as
     ``static.terms`` says)."""
     if static.likelihood == "charge":
-        mean = _mean(theta, base, sensors, data, cached, static)
-        spe_width = _params_of(theta, base).spe_width
-        return summed_charge_nll(data.charge_sum, data.hit_any, mean, spe_width)
+        return _charge_terms(theta, base, data, _mean(theta, base, sensors, data, cached, static))
     prediction = _prediction(theta, base, sensors, data, cached, static)
     mu_dark = dark_expectation(_params_of(theta, base), static.window)
 
