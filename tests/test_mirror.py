@@ -14,6 +14,7 @@ from photonflow.transport import indirect
 from photonflow.transport.emission import sample_directions
 from photonflow.transport.mirror import (
     FOCUSING_LIMIT,
+    _ellipses_covered,
     circle_reflections,
     focusing_ratio,
     mirror_light,
@@ -41,6 +42,43 @@ def test_circle_reflections_are_the_stationary_points_of_the_path_length():
             brute = grid[1:-1][np.sign(step[:-1]) != np.sign(step[1:])]
             assert len(roots) == len(brute)
             np.testing.assert_allclose(roots, brute, atol=2e-5)
+
+
+def test_ellipse_under_discs_matches_a_dense_point_count():
+    """The covered fraction of wall patches (ellipses) under two discs against 200,000
+    points spread uniformly over each ellipse (float64): within 0.01 each, 0.003 on
+    average, for ellipses from small to twice the discs' size, at any orientation."""
+    rng = np.random.default_rng(11)
+    centres = np.array([[0.0, 0.0, 0.0], [2.05, 0.3, 0.0]])
+    radius = np.array([1.0, 0.8])
+    n_ellipses = 40
+    middle = np.column_stack([rng.uniform(-1.5, 3.2, n_ellipses),
+                              rng.uniform(-1.4, 1.6, n_ellipses), np.zeros(n_ellipses)])
+    spans = np.zeros((n_ellipses, 2, 3))
+    spans[:, :, :2] = rng.normal(0.0, 0.6, (n_ellipses, 2, 2))
+    with jax.enable_x64(True):
+        discs = (
+            jnp.ones((n_ellipses, 2), bool),
+            tuple(jnp.broadcast_to(jnp.asarray(centres[:, k]), (n_ellipses, 2)) for k in range(3)),
+            tuple(jnp.broadcast_to(jnp.asarray(v), (n_ellipses, 2)) for v in (0.0, 0.0, 1.0)),
+            jnp.broadcast_to(jnp.asarray(radius), (n_ellipses, 2)),
+        )
+        fraction = np.asarray(_ellipses_covered(discs, jnp.asarray(middle), jnp.asarray(spans)))
+    count = 200_000
+    r = np.sqrt(rng.uniform(size=count))
+    phi = rng.uniform(0, 2 * np.pi, count)
+    unit = np.column_stack([r * np.cos(phi), r * np.sin(phi)])
+    reference = []
+    for m, s in zip(middle, spans, strict=True):
+        points = m + unit @ s
+        inside = np.zeros(count, bool)
+        for c, rad in zip(centres, radius, strict=True):
+            inside |= np.sum((points - c) ** 2, axis=1) < rad**2
+        reference.append(inside.mean())
+    error = np.abs(fraction - np.array(reference))
+    assert 0.1 < np.mean(reference) < 0.9
+    assert error.max() < 0.01, error.max()
+    assert error.mean() < 0.003, error.mean()
 
 
 def _landing(shape, source, alpha, tau, plane_point, plane_normal):
@@ -130,6 +168,7 @@ def test_mirror_light_agrees_with_mirrored_rays(name):
                 params, detector.shape, indirect.sensor_grid_for(detector),
                 jnp.asarray(detector.sensor_positions), jnp.asarray(detector.sensor_normals),
                 jnp.asarray(detector.sensor_radius), source, jnp.zeros(detector.n_sensors),
+                indirect.near_grid_for(detector),
             )[0]
         )
         estimate = jax.jit(lambda key: _ray_estimate(detector, params, source, 1 << 20, key))

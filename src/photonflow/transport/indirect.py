@@ -134,12 +134,6 @@ class IndirectLight:
     residual_weight: jax.Array
 
 
-def _safe_sqrt(x):
-    """sqrt(max(x, 0)) with a finite (zero) gradient at 0."""
-    positive = x > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
-
-
 @dataclasses.dataclass(frozen=True)
 class _Sensors:
     positions: jax.Array
@@ -619,7 +613,7 @@ def indirect_light_jit(
         ]
         mirrored = mirror_light(
             params, shape, grid, sensor_positions, sensor_normals, sensor_radius, source,
-            reference_time,
+            reference_time, near_grid,
         )
         total = [t.at[0].add(m) for t, m in zip(total, mirrored, strict=True)]
     charge, first, second = total

@@ -13,7 +13,7 @@ therefore computed like direct light, for every node x of a 7-point rule on disc
 with L = |P - s| + |x - P| the path length, omega_P the emission direction toward P,
 A_P the area per steradian of the reflected ray tube at x (m^2/sr; photons per m^2
 across the ray = S / A_P) and the indicator that the photon reaches the black wall at P
-rather than a sensor disc (``on_sensor``). The reflection points:
+rather than a sensor disc (``uncovered_share``). The reflection points:
 
 - planar faces (cylinder caps, box faces): the mirror image s' of the source; P is where
   the line s' -> x crosses the plane, A_P = L^2;
@@ -32,13 +32,19 @@ Near caustics (a curved wall focusing the ray tube below ``FOCUSING_LIMIT`` of a
 mirror's, e.g. the axis of a cylinder for a source on it) a node rule is poor: those
 paths are left to the rays. Everywhere else the ray estimator of ``indirect.py`` leaves
 out its detections after a first-order mirror vertex (it still follows those rays), so
-the sum stays unbiased. The node rule resolves the wall under other sensors and the
-cap-barrel edge only coarsely (tests/test_mirror.py: totals within 1 % of mirrored
-rays, single sensors at the cap rim off by up to ~30 % of their mirrored light). The
-sensor masks switch as the source moves (piecewise-constant in position). Roots are found
-without gradient and refined by one Newton step with it (the implicit-function
-derivative), so the light is differentiable in the source position; ``Params`` enter
-only through the weights. Lengths m, times ns.
+the sum stays unbiased.
+
+The wall under other sensors is not a smooth integrand: a node either reflects off bare
+wall or meets a disc. Taken node by node it was ~10 % off on SK's barrel for a source on
+the axis, whose reflections line up with the columns of discs (sampled mode against
+expected mode, docs/calibration.md). So each disc is mapped onto the wall whole: the
+linear map fitted to its nodes' reflection points takes it to an ellipse, and the part
+of that ellipse under other discs (``uncovered_share``, chord by chord, exact up to the
+chords' quadrature) is shared by all its nodes. The cap-barrel edge is still resolved
+node by node. Roots are found without gradient and refined by one Newton step with it
+(the implicit-function derivative), so the light, the covered part included, is
+differentiable in the source position; ``Params`` enter only through the weights.
+Lengths m, times ns.
 """
 
 from __future__ import annotations
@@ -52,7 +58,7 @@ import numpy as np
 from ..geometry.sensor_grid import grid_candidates_xyz
 from ..geometry.shapes import Box, Cylinder, Sphere
 from ..params import Params
-from .optics import acceptance_at_cos, interaction_rates, travel_time
+from .optics import acceptance_at_cos, interaction_rates, safe_sqrt, travel_time
 from .solid_angle import plane_basis
 
 #: Azimuths of the grid that brackets reflection points on a circle.
@@ -333,25 +339,169 @@ def reflection_points(shape, source, nodes):
     return tuple(jnp.concatenate(xs, axis=1) for xs in zip(*parts, strict=True))
 
 
-def on_sensor(grid, sensor_positions, sensor_normals, sensor_radius, points):
-    """Whether wall points (..., 3) m lie under a sensor disc: within its radius of its
-    centre across its axis and within ``ON_DISC`` m of its plane (the discs sit on the
-    wall; the lookup grid lists every disc near a point). A photon heading there meets
-    the sensor, not the wall."""
-    xyz = tuple(points[..., k] for k in range(3))
-    candidates = grid_candidates_xyz(grid, xyz)  # (..., K)
-    valid = candidates >= 0
-    index = jnp.where(valid, candidates, 0)
-    offset = [xyz[k][..., None] - sensor_positions[:, k][index] for k in range(3)]
-    height = sum(offset[k] * sensor_normals[:, k][index] for k in range(3))
-    across = sum(o * o for o in offset) - height * height
-    radius = sensor_radius[index]
-    inside = valid & (across < radius * radius) & (jnp.abs(height) < ON_DISC)
-    return jnp.any(inside, axis=-1)
+def disc_to_wall(points, valid, radius):
+    """The linear map from a disc to the wall about each reflection: (N, M, 2, 3), the
+    images A u and A v of the unit vectors of the disc's ``plane_basis`` (m per m), for
+    reflection points ``points`` (N, Q, M, 3) m of the Q = 7 nodes of
+    ``radon_disc_rule`` (node 0 the centre) in M slots, ``valid`` (N, Q, M), disc radii
+    ``radius`` (N,) m. The least-squares fit to the six outer nodes' points about the
+    centre's (Radon's nodes at angles k pi / 3 and radius sqrt(2/3) r:
+    A u = sum_k (P_k - P_0) cos(k pi / 3) / (3 sqrt(2/3) r)); zero where a slot lacks
+    any of its disc's nodes."""
+    x, y, _ = radon_disc_rule()
+    rho_node = math.sqrt(2.0 / 3.0)
+    offsets = points[:, 1:] - points[:, :1]  # (N, 6, M, 3)
+    cos_k = jnp.asarray(x[1:] / rho_node, points.dtype)[None, :, None, None]
+    sin_k = jnp.asarray(y[1:] / rho_node, points.dtype)[None, :, None, None]
+    scale = 1.0 / (3.0 * rho_node * radius)[:, None, None]
+    complete = jnp.all(valid, axis=1)[..., None]  # (N, M, 1)
+    along = [jnp.where(complete, jnp.sum(offsets * c, axis=1) * scale, 0.0)
+             for c in (cos_k, sin_k)]
+    return jnp.stack(along, axis=-2)
+
+
+#: Chords across a disc's wall patch over which the part under another disc is
+#: integrated (midpoint rule in the angle of a sine substitution).
+CHORDS = 8
+
+
+def _in_plane_basis(normal):
+    """A unit vector (3-tuple) across each unit ``normal`` (3-tuple of arrays):
+    ``solid_angle.plane_basis``'s first vector, on components."""
+    sign = jnp.where(normal[2] >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + normal[2])
+    return (1.0 + sign * normal[0] ** 2 * a, sign * normal[0] * normal[1] * a, -sign * normal[0])
+
+
+def _nearby_discs(grid, sensor_positions, sensor_normals, sensor_radius, centre):
+    """The discs the lookup ``grid`` lists near points ``centre`` (..., 3) m: (listed
+    (..., K) bool, centres and normals (3-tuples of (..., K)), radii (..., K) m)."""
+    candidates = grid_candidates_xyz(grid, tuple(centre[..., k] for k in range(3)))
+    listed = candidates >= 0
+    index = jnp.where(listed, candidates, 0)
+    return (listed, tuple(sensor_positions[:, k][index] for k in range(3)),
+            tuple(sensor_normals[:, k][index] for k in range(3)), sensor_radius[index])
+
+
+def _across(discs, points):
+    """(height above the disc's plane m, vector across its axis (3-tuple) m, its length m)
+    of points (3-tuple of arrays broadcasting against the (..., K) ``discs``)."""
+    _, position, normal, _ = discs
+    offset = [p - c for p, c in zip(points, position, strict=True)]
+    height = sum(o * n for o, n in zip(offset, normal, strict=True))
+    across = [o - height * n for o, n in zip(offset, normal, strict=True)]
+    return height, across, jnp.sqrt(sum(a * a for a in across))
+
+
+def _points_covered(discs, points):
+    """Whether points (3-tuple of (...,) arrays broadcasting against ``discs``' leading
+    axes) lie under one of ``discs`` (``_nearby_discs``): within its radius of its
+    centre across its axis and within ``ON_DISC`` m of its plane."""
+    listed, _, _, radius = discs
+    height, _, distance = _across(discs, tuple(p[..., None] for p in points))
+    return jnp.any(listed & (jnp.abs(height) < ON_DISC) & (distance < radius), axis=-1)
+
+
+def _principal_axes(spans):
+    """The principal half-axes (2-tuple of 3-tuples of (...,) arrays, m) of ellipses with
+    conjugate half-axes ``spans`` (..., 2, 3) m, the longer first: the singular vectors
+    of the 3 x 2 map scaled by its singular values (closed form for 2 x 2)."""
+    s1, s2 = spans[..., 0, :], spans[..., 1, :]
+    a, b, c = jnp.sum(s1 * s1, -1), jnp.sum(s1 * s2, -1), jnp.sum(s2 * s2, -1)
+    # eigenvector of [[a, b], [b, c]] for the larger eigenvalue: angle of the major axis
+    # (a circle has any axes: the safe arguments keep its gradient finite)
+    round_ = (jnp.abs(b) + jnp.abs(a - c)) <= 1e-12 * (a + c) + 1e-300
+    angle = 0.5 * jnp.arctan2(jnp.where(round_, 0.0, 2.0 * b), jnp.where(round_, 1.0, a - c))
+    major = jnp.cos(angle)[..., None] * s1 + jnp.sin(angle)[..., None] * s2
+    minor = -jnp.sin(angle)[..., None] * s1 + jnp.cos(angle)[..., None] * s2
+    return (tuple(major[..., k] for k in range(3)), tuple(minor[..., k] for k in range(3)))
+
+
+def _ellipses_covered(discs, centre, spans):
+    """Fraction (...,) of the ellipses about ``centre`` (..., 3) m with conjugate
+    half-axes ``spans`` (..., 2, 3) m that lies under ``discs`` (``_nearby_discs`` of
+    the centres), for ellipses whose centre is within ``ON_DISC`` m of a disc's plane
+    (the discs sit on the wall). The ellipse is cut into ``CHORDS`` chords along its
+    major axis, spread over the offsets along its minor axis where the disc is; the part
+    of each chord over the disc (a line across a circle) is exact, and the chords are
+    summed by the midpoint rule after the substitution offset = middle + half
+    sin(theta), which smooths the chord lengths' square-root ends. Thin ellipses, whose
+    covered part changes abruptly across their width, and discs over the edge of a large
+    ellipse are then as accurate as the rest."""
+    listed, _, normal, radius = discs
+    height, across, _ = _across(discs, tuple(centre[..., k, None] for k in range(3)))
+    major, minor = (tuple(a[..., None] for a in axis) for axis in _principal_axes(spans))
+
+    def flat(vector):  # the part across each disc's axis
+        along = sum(v * n for v, n in zip(vector, normal, strict=True))
+        return tuple(v - along * n for v, n in zip(vector, normal, strict=True))
+
+    major, minor = flat(major), flat(minor)
+    tiny = 1e-30 * radius * radius
+    alpha = sum(m * m for m in major)
+    safe_alpha = jnp.maximum(alpha, tiny)
+    # the minor offsets w where the disc can be: the disc is the ellipse |q + M w| < r
+    # in the coordinates w of this one (M = [major, minor], q = across); its extent in w_2
+    # is w0_2 +- r sqrt(G^-1_22), G = M^T M, w0 = -G^-1 M^T q
+    mixed = sum(a * b for a, b in zip(major, minor, strict=True))
+    g22 = sum(m * m for m in minor)
+    det = alpha * g22 - mixed * mixed
+    solid = det > 1e-12 * alpha * alpha
+    safe_det = jnp.where(solid, det, 1.0)
+    on_major = sum(q * m for q, m in zip(across, major, strict=True))
+    on_minor = sum(q * m for q, m in zip(across, minor, strict=True))
+    middle = -(alpha * on_minor - mixed * on_major) / safe_det
+    extent = radius * safe_sqrt(alpha / safe_det)
+    low = jnp.where(solid, jnp.maximum(middle - extent, -1.0), -1.0)
+    high = jnp.where(solid, jnp.minimum(middle + extent, 1.0), 1.0)
+    centre_w, half_w = 0.5 * (low + high), jnp.maximum(0.5 * (high - low), 0.0)
+    fraction = jnp.zeros_like(radius)
+    for i in range(CHORDS):
+        theta = -0.5 * math.pi + (i + 0.5) * math.pi / CHORDS
+        offset = centre_w + half_w * math.sin(theta)  # the chord's minor offset
+        reach = safe_sqrt(1.0 - offset * offset)  # its half-length
+        start = tuple(q + offset * n for q, n in zip(across, minor, strict=True))
+        beta = sum(q * m for q, m in zip(start, major, strict=True))
+        gamma = sum(q * q for q in start) - radius * radius
+        root = safe_sqrt(beta * beta - alpha * gamma)
+        inside = (jnp.minimum((-beta + root) / safe_alpha, reach)
+                  - jnp.maximum((-beta - root) / safe_alpha, -reach))
+        point_like = jnp.where(gamma < 0, 2.0 * reach, 0.0)  # a chord of no length
+        length = jnp.where(alpha > tiny, jnp.maximum(inside, 0.0), point_like)
+        fraction = fraction + length * half_w * (math.cos(theta) / CHORDS)
+    on_plane = listed & (jnp.abs(height) < ON_DISC)
+    return jnp.minimum(jnp.sum(jnp.where(on_plane, fraction, 0.0), axis=-1), 1.0)
+
+
+def uncovered_share(near_grid, sensor_positions, sensor_normals, sensor_radius, points, valid):
+    """(N, Q, M): the fraction of the light of each quadrature node that reaches the
+    bare wall at its reflection point rather than a sensor disc, for reflection points
+    ``points`` (N, Q, M, 3) m of the Q nodes of ``radon_disc_rule`` on the discs
+    (``valid`` (N, Q, M); radii ``sensor_radius`` (N,) m).
+
+    The wall under other sensors is a step function of the node, which a 7-node rule
+    resolves poorly: where the walls's reflections line up with the rows of discs (a
+    source on a cylinder's axis) it took ~10 % too much of SK's barrel mirror light as
+    covered. So the disc is mapped onto the wall whole: the linear map of
+    ``disc_to_wall`` takes it to an ellipse, whose covered fraction
+    (``_covered_by_discs``) every node of the disc shares (the light varies little
+    across a disc). A slot where some of the disc's nodes have no reflection keeps the
+    point test per node. ``near_grid`` must list every disc within reach of the patch
+    about the reflection of the disc's centre (``indirect.near_grid_for``'s lists every
+    disc within 4 radii)."""
+    linear = disc_to_wall(points, valid, sensor_radius)  # (N, M, 2, 3)
+    spans = sensor_radius[:, None, None, None] * linear
+    discs = _nearby_discs(near_grid, sensor_positions, sensor_normals, sensor_radius,
+                          points[:, 0])  # (N, M, K): the discs near each disc's patch
+    whole = _ellipses_covered(discs, points[:, 0], spans)  # (N, M)
+    nodes = _points_covered(jax.tree.map(lambda x: x[:, None], discs),
+                            tuple(points[..., k] for k in range(3)))  # (N, Q, M)
+    complete = jnp.all(valid, axis=1)  # (N, M)
+    return 1.0 - jnp.where(complete[:, None], whole[:, None], nodes.astype(whole.dtype))
 
 
 def mirror_light(params: Params, shape, grid, sensor_positions, sensor_normals, sensor_radius,
-                 source, reference_time):
+                 source, reference_time, near_grid=None):
     """First-order specular light from the source per sensor (see the module docstring).
 
     Args:
@@ -361,6 +511,10 @@ def mirror_light(params: Params, shape, grid, sensor_positions, sensor_normals, 
         sensor_positions, sensor_normals, sensor_radius: (N, 3) m, (N, 3), (N,) m.
         source: a calibration source (position m, time ns, ``emission_density``).
         reference_time: (N,) ns subtracted from arrival times.
+        near_grid: a grid listing every disc within a few radii of a point
+            (``indirect.near_grid_for``), for the wall under other discs across a
+            disc's whole mirrored patch; None: ``grid`` (which lists only the discs
+            within r + ``BASE_MARGIN`` of a point, too few for patches larger than that).
 
     Returns:
         (N,) sums of c, c t and c t^2: c expected p.e., t arrival time minus the
@@ -383,10 +537,12 @@ def mirror_light(params: Params, shape, grid, sensor_positions, sensor_normals, 
     outgoing = targets[:, None] - points
     l_out = jnp.linalg.norm(outgoing, axis=-1)
     cos_in = -jnp.sum(outgoing * sensor_normals[receiver][:, None], axis=-1) / l_out
-    covered = on_sensor(
-        grid, sensor_positions, sensor_normals, sensor_radius, jax.lax.stop_gradient(points)
-    )
-    counts = valid & ~covered & (cos_in > 0)
+    uncovered = uncovered_share(
+        grid if near_grid is None else near_grid, sensor_positions, sensor_normals, sensor_radius,
+        points.reshape(n, per_disc, -1, 3),
+        valid.reshape(n, per_disc, -1),
+    ).reshape(points.shape[:2])
+    counts = valid & (uncovered > 0) & (cos_in > 0)
     counts = counts & (jax.lax.stop_gradient(focusing) >= FOCUSING_LIMIT)
 
     rate_total = interaction_rates(params)[3]
@@ -404,6 +560,7 @@ def mirror_light(params: Params, shape, grid, sensor_positions, sensor_normals, 
         * params.efficiency[receiver][:, None]
         * acceptance_at_cos(params.angular_acceptance, jnp.maximum(cos_in, 0.0))
         * jnp.exp(-rate_total * path)
+        * uncovered
     )
     detected = jnp.where(counts, detected, 0.0)
     relative = (
