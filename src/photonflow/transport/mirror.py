@@ -360,6 +360,9 @@ def disc_to_wall(points, valid, radius):
     return jnp.stack(along, axis=-2)
 
 
+#: Discs, the nearest to a disc's mirrored wall patch, that are tested for covering it
+#: (the patch is mostly smaller than a disc, rarely a few discs across).
+NEAREST_DISCS = 4
 #: Chords across a disc's wall patch over which the part under another disc is
 #: integrated (midpoint rule in the angle of a sine substitution).
 CHORDS = 8
@@ -480,20 +483,27 @@ def uncovered_share(near_grid, sensor_positions, sensor_normals, sensor_radius, 
     (``valid`` (N, Q, M); radii ``sensor_radius`` (N,) m).
 
     The wall under other sensors is a step function of the node, which a 7-node rule
-    resolves poorly: where the walls's reflections line up with the rows of discs (a
+    resolves poorly: where the wall's reflections line up with the rows of discs (a
     source on a cylinder's axis) it took ~10 % too much of SK's barrel mirror light as
     covered. So the disc is mapped onto the wall whole: the linear map of
     ``disc_to_wall`` takes it to an ellipse, whose covered fraction
-    (``_covered_by_discs``) every node of the disc shares (the light varies little
-    across a disc). A slot where some of the disc's nodes have no reflection keeps the
-    point test per node. ``near_grid`` must list every disc within reach of the patch
-    about the reflection of the disc's centre (``indirect.near_grid_for``'s lists every
-    disc within 4 radii)."""
+    (``_ellipses_covered``) every node of the disc shares (the light varies little
+    across a disc). A slot where some of the disc's nodes have no reflection (the
+    cap-barrel edge) keeps the point test per node. Only the ``NEAREST_DISCS`` discs
+    nearest to the patch's centre are tested; ``near_grid`` must list them
+    (``indirect.near_grid_for``'s lists every disc within 4 radii)."""
     linear = disc_to_wall(points, valid, sensor_radius)  # (N, M, 2, 3)
     spans = sensor_radius[:, None, None, None] * linear
-    discs = _nearby_discs(near_grid, sensor_positions, sensor_normals, sensor_radius,
-                          points[:, 0])  # (N, M, K): the discs near each disc's patch
-    whole = _ellipses_covered(discs, points[:, 0], spans)  # (N, M)
+    # look the discs up at the first node with a reflection in each slot (the centre's
+    # when it has one): the grid lists every disc within reach of all the disc's nodes
+    first = jnp.argmax(valid, axis=1)[:, None, :, None]  # (N, 1, M, 1)
+    lookup = jnp.take_along_axis(points, first, axis=1)[:, 0]  # (N, M, 3)
+    discs = _nearby_discs(near_grid, sensor_positions, sensor_normals, sensor_radius, lookup)
+    # only the discs nearest to the lookup point can cover much of the patch
+    _, _, distance = _across(discs, tuple(lookup[..., k, None] for k in range(3)))
+    _, nearest = jax.lax.top_k(-jnp.where(discs[0], distance, jnp.inf), NEAREST_DISCS)
+    discs = jax.tree.map(lambda x: jnp.take_along_axis(x, nearest, axis=-1), discs)
+    whole = _ellipses_covered(discs, lookup, spans)  # (N, M); complete slots: lookup = P_0
     nodes = _points_covered(jax.tree.map(lambda x: x[:, None], discs),
                             tuple(points[..., k] for k in range(3)))  # (N, Q, M)
     complete = jnp.all(valid, axis=1)  # (N, M)
