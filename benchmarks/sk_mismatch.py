@@ -1,6 +1,6 @@
 """Sampled against expected mode on SK, seen through the calibration (~8 min).
 
-``python benchmarks/sk_mismatch.py [pulses]``: for the 16 sources of the SK campaign
+``python benchmarks/sk_mismatch.py [pulses] [component]``: for the 16 sources of the SK campaign
 (``examples/calibration/sk_joint.py``: a downward laser and 15 isotropic flashes of 10^6
 photons) at its true optics, the per-sensor mean photoelectrons of ``pulses`` sampled
 pulses (default 20) against the expected mode (8 ray keys x 4,096 rays, averaged), and
@@ -13,7 +13,9 @@ J the derivatives of M in the optics (and in each sensor's efficiency, profiled 
 the Schur complement). Printed in units of the Cramer-Rao sigma of one experiment, with
 its statistical error 1/sqrt(pulses), for all sources together and one source at a time.
 A shift that is not zero within its error is a mismatch of the two modes that the
-calibration would turn into a bias.
+calibration would turn into a bias. With ``component`` (a name of
+``sk_components.COMPONENTS``, e.g. ``scatter``) every other light component is switched
+off in both modes, which says where a mismatch comes from.
 """
 
 from __future__ import annotations
@@ -34,6 +36,9 @@ from photonflow.transport.sampled import grid_for, sample_photons
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "calibration"))
 from sk_joint import OPTICS, TRUE_OPTICS, campaign_sources  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from sk_components import COMPONENTS  # noqa: E402
 
 RAY_KEYS = 8
 CONFIG = TransportConfig(n_bounces=2, n_rays=4096)
@@ -98,6 +103,10 @@ def main() -> None:
     pulses = int(sys.argv[1]) if len(sys.argv) > 1 else 20
     detector = pf.load_detector("SK")
     truth = pf.default_params(detector).replace(**TRUE_OPTICS)
+    if len(sys.argv) > 2:
+        changes, _ = COMPONENTS[sys.argv[2]]
+        truth = truth.replace(**changes)
+        print(f"{sys.argv[2]} only: {changes}")
     sources = campaign_sources(detector, 1e6)
     rows = source_rows(detector, truth, sources, pulses)
     shift, sigma = optics_shift(rows)
