@@ -7,7 +7,8 @@ of ``pulses`` sampled pulses (default 40) against the expected mode (4 ray keys 
 rays), with every other light component switched off:
 
 - ``direct``: no scattering, no reflection;
-- ``scatter``: bulk scattering only (walls and glass black);
+- ``scatter``: bulk scattering only (walls and glass black); ``scatter1``: the same with
+  one vertex at most (single scattering);
 - ``wall``: the wall only (specular and Lambertian), ``glass``: the sensor glass only;
 - ``mirror``: the wall as a perfect mirror (reflectivity 1, specular), one bounce:
   the first-order mirror light of ``transport/mirror.py`` at its largest.
@@ -43,6 +44,7 @@ COMPONENTS = {
     "direct": ({"scattering_length": DARK, "mie_length": DARK, "wall_reflectivity": 0.0,
                 "sensor_reflectivity": 0.0}, 2),
     "scatter": ({"wall_reflectivity": 0.0, "sensor_reflectivity": 0.0}, 2),
+    "scatter1": ({"wall_reflectivity": 0.0, "sensor_reflectivity": 0.0}, 1),
     "wall": ({"scattering_length": DARK, "mie_length": DARK, "sensor_reflectivity": 0.0}, 2),
     "glass": ({"scattering_length": DARK, "mie_length": DARK, "wall_reflectivity": 0.0}, 2),
     "mirror": ({"scattering_length": DARK, "mie_length": DARK, "sensor_reflectivity": 0.0,

@@ -15,11 +15,13 @@ its statistical error 1/sqrt(pulses), for all sources together and one source at
 A shift that is not zero within its error is a mismatch of the two modes that the
 calibration would turn into a bias. With ``component`` (a name of
 ``sk_components.COMPONENTS``, e.g. ``scatter``) every other light component is switched
-off in both modes, which says where a mismatch comes from.
+off in both modes, and the bounces are the component's (``scatter1``: single
+scattering), which says where a mismatch comes from.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -44,7 +46,7 @@ RAY_KEYS = 8
 CONFIG = TransportConfig(n_bounces=2, n_rays=4096)
 
 
-def source_rows(detector, truth, sources, pulses: int) -> list[dict]:
+def source_rows(detector, truth, sources, pulses: int, config=CONFIG) -> list[dict]:
     """Per source: expected charges M (N,) p.e. and their optics derivatives J (N, 4)
     (means over ``RAY_KEYS`` ray sets), and the sampled mean photoelectrons n (N,)."""
     grid = grid_for(detector, None)
@@ -59,7 +61,7 @@ def source_rows(detector, truth, sources, pulses: int) -> list[dict]:
 
             def charge_of(x, source=source, key=key):
                 params = truth.replace(**dict(zip(OPTICS, x, strict=True)))
-                return expected(detector, params, source, config=CONFIG, key=key,
+                return expected(detector, params, source, config=config, key=key,
                                 grid=grid).charge
 
             m, j = jax.vmap(lambda t, f=charge_of: jax.jvp(f, (x0,), (t,)),
@@ -69,7 +71,7 @@ def source_rows(detector, truth, sources, pulses: int) -> list[dict]:
         counts = [
             np.asarray(sample_photons(detector, truth, source,
                                       jax.random.key(5000 + 100 * index + k),
-                                      config=CONFIG, grid=grid).n_pe, np.float64)
+                                      config=config, grid=grid).n_pe, np.float64)
             for k in range(pulses)
         ]
         row = {"M": np.mean(charges, axis=0), "J": np.mean(jacobians, axis=0),
@@ -103,12 +105,14 @@ def main() -> None:
     pulses = int(sys.argv[1]) if len(sys.argv) > 1 else 20
     detector = pf.load_detector("SK")
     truth = pf.default_params(detector).replace(**TRUE_OPTICS)
+    config = CONFIG
     if len(sys.argv) > 2:
-        changes, _ = COMPONENTS[sys.argv[2]]
+        changes, bounces = COMPONENTS[sys.argv[2]]
         truth = truth.replace(**changes)
-        print(f"{sys.argv[2]} only: {changes}")
+        config = dataclasses.replace(CONFIG, n_bounces=bounces)
+        print(f"{sys.argv[2]} only: {changes}, {bounces} bounce(s)")
     sources = campaign_sources(detector, 1e6)
-    rows = source_rows(detector, truth, sources, pulses)
+    rows = source_rows(detector, truth, sources, pulses, config)
     shift, sigma = optics_shift(rows)
     print(f"\nshift / sigma, all sources (statistical error {1 / np.sqrt(pulses):.2f}):")
     for name, s, e in zip(OPTICS, shift, sigma, strict=True):
