@@ -368,14 +368,6 @@ NEAREST_DISCS = 4
 CHORDS = 8
 
 
-def _in_plane_basis(normal):
-    """A unit vector (3-tuple) across each unit ``normal`` (3-tuple of arrays):
-    ``solid_angle.plane_basis``'s first vector, on components."""
-    sign = jnp.where(normal[2] >= 0, 1.0, -1.0)
-    a = -1.0 / (sign + normal[2])
-    return (1.0 + sign * normal[0] ** 2 * a, sign * normal[0] * normal[1] * a, -sign * normal[0])
-
-
 def _nearby_discs(grid, sensor_positions, sensor_normals, sensor_radius, centre):
     """The discs the lookup ``grid`` lists near points ``centre`` (..., 3) m: (listed
     (..., K) bool, centres and normals (3-tuples of (..., K)), radii (..., K) m)."""
