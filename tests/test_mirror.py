@@ -12,14 +12,16 @@ from photonflow.params import default_params
 from photonflow.sources import IsotropicSource
 from photonflow.transport import indirect
 from photonflow.transport.emission import sample_directions
+from photonflow.transport.expected import expected_inputs, expected_jit
 from photonflow.transport.mirror import (
     FOCUSING_LIMIT,
     _ellipses_covered,
     circle_reflections,
     focusing_ratio,
     mirror_light,
+    mirror_paths,
 )
-from photonflow.transport.optics import acceptance_at_cos, specular_direction
+from photonflow.transport.optics import TransportConfig, acceptance_at_cos, specular_direction
 
 
 def test_circle_reflections_are_the_stationary_points_of_the_path_length():
@@ -163,13 +165,13 @@ def test_mirror_light_agrees_with_mirrored_rays(name):
         )
         source = IsotropicSource(position=[0.3, -0.2, 0.5], n_photons=1e6)
         source = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), source)
+        paths = mirror_paths(
+            detector.shape, indirect.sensor_grid_for(detector),
+            jnp.asarray(detector.sensor_positions), jnp.asarray(detector.sensor_normals),
+            jnp.asarray(detector.sensor_radius), source, indirect.near_grid_for(detector),
+        )
         quad = np.asarray(
-            mirror_light(
-                params, detector.shape, indirect.sensor_grid_for(detector),
-                jnp.asarray(detector.sensor_positions), jnp.asarray(detector.sensor_normals),
-                jnp.asarray(detector.sensor_radius), source, jnp.zeros(detector.n_sensors),
-                indirect.near_grid_for(detector),
-            )[0]
+            mirror_light(params, paths, source, jnp.zeros(detector.n_sensors))[0]
         )
         estimate = jax.jit(lambda key: _ray_estimate(detector, params, source, 1 << 20, key))
         rays = np.stack([np.asarray(estimate(jax.random.key(k))) for k in range(4)])
@@ -183,3 +185,32 @@ def test_mirror_light_agrees_with_mirrored_rays(name):
         band_error = np.sqrt(np.sum(error[group] ** 2))
         if mean[group].sum() > 0:
             assert abs(quad[group].sum() - mean[group].sum()) < 5 * band_error + 1e-3 * mean.sum()
+
+
+def test_mirror_paths_computed_once_give_the_same_prediction():
+    """The expected mode with a source's mirror paths passed in (a calibration run computes
+    them once) equals the one that computes them itself, in value and in the gradient in
+    the reflectivity, absorption length and one efficiency; and the paths carry light."""
+    detector = preset_detector("TOY_CYLINDER")
+    params = default_params(detector).replace(wall_reflectivity=0.3, wall_specular_fraction=0.8)
+    source = IsotropicSource(position=[0.3, -0.2, 0.5], n_photons=1e6)
+    source = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), source)
+    positions, normals, radius, grid, near_grid = expected_inputs(detector, jnp.float32)
+    config = TransportConfig(n_bounces=2, n_rays=256)
+    paths = mirror_paths(detector.shape, grid, positions, normals, radius, source, near_grid)
+    assert float(jnp.sum(paths.weight)) > 0
+
+    def charge(values, mirror):
+        wall, absorption, efficiency = values
+        changed = params.replace(wall_reflectivity=wall, absorption_length=absorption,
+                                 efficiency=params.efficiency.at[3].set(efficiency))
+        return jnp.sum(expected_jit(positions, normals, radius, grid, changed, source,
+                                    jax.random.key(2), near_grid, mirror,
+                                    shape=detector.shape, config=config).charge ** 1.5)
+
+    at = (jnp.float32(0.3), jnp.float32(float(params.absorption_length)), jnp.float32(1.0))
+    inside, inside_grad = jax.value_and_grad(charge)(at, None)
+    given, given_grad = jax.value_and_grad(charge)(at, paths)
+    np.testing.assert_allclose(float(given), float(inside), rtol=1e-6)
+    for a, b in zip(given_grad, inside_grad, strict=True):
+        np.testing.assert_allclose(float(a), float(b), rtol=1e-5)

@@ -50,6 +50,7 @@ from ..likelihood import (
 from ..params import Params, from_unconstrained, to_unconstrained
 from ..prediction import Prediction
 from ..transport.expected import expected_inputs, expected_jit
+from ..transport.mirror import MirrorPaths, mirror_paths
 from ..transport.optics import TransportConfig
 from .information import (
     charge_information,
@@ -110,12 +111,14 @@ class _RunArrays:
     hit: jax.Array | None
     charge: jax.Array | None
     time: jax.Array | None
+    mirror: MirrorPaths | None = None
 
 
 jax.tree_util.register_dataclass(
     _RunArrays,
     data_fields=[
-        "source", "key", "n_events", "charge_sum", "hit_any", "hit", "charge", "time"
+        "source", "key", "n_events", "charge_sum", "hit_any", "hit", "charge", "time",
+        "mirror",
     ],
     meta_fields=[],
 )
@@ -236,7 +239,7 @@ def _prediction(theta, base, sensors, data, cached, static: _Static) -> Predicti
     params = _params_of(theta, base)
     if cached is None:
         cached = _transport_jit(sensors, without_response(params), data.source, data.key,
-                                shape=static.shape, config=static.config)
+                                data.mirror, shape=static.shape, config=static.config)
     return with_response(cached, params)
 
 
@@ -499,9 +502,10 @@ class CalibrationProblem:
         dtype = jnp.result_type(init_params.absorption_length)
         self.sensors = expected_inputs(detector, dtype)
         per_event = likelihood == "charge+time"
+        sources = [jax.tree.map(lambda x: jnp.asarray(x, dtype), run.source) for run in runs]
         self.arrays = [
             _RunArrays(
-                source=jax.tree.map(lambda x: jnp.asarray(x, dtype), run.source),
+                source=source,
                 key=jax.random.fold_in(key, index),
                 n_events=jnp.asarray(run.n_events, dtype),
                 charge_sum=jnp.asarray(run.charge_sum, dtype),
@@ -509,8 +513,9 @@ class CalibrationProblem:
                 hit=jnp.asarray(run.hit) if per_event else None,
                 charge=jnp.asarray(run.charge, dtype) if per_event else None,
                 time=jnp.asarray(run.time, dtype) if per_event else None,
+                mirror=run_mirror_paths(self.sensors, source, detector.shape, config),
             )
-            for index, run in enumerate(runs)
+            for index, (run, source) in enumerate(zip(runs, sources, strict=True))
         ]
         #: per run, the keys of its independent ray sets (``independent_ray_curvature``)
         self.jacobian_keys = [
@@ -533,7 +538,7 @@ class CalibrationProblem:
             theta = self.initial_theta()
             transport = without_response(self.params_of(theta))
             self.cached = [
-                _transport_jit(self.sensors, transport, data.source, data.key,
+                _transport_jit(self.sensors, transport, data.source, data.key, data.mirror,
                                shape=detector.shape, config=config)
                 for data in self.arrays
             ]
@@ -772,9 +777,25 @@ def ray_set_keys(key, n_sets: int) -> list:
 
 
 @functools.partial(jax.jit, static_argnames=("shape", "config"))
-def _transport_jit(sensors, params, source, key, *, shape, config) -> Prediction:
+def _transport_jit(sensors, params, source, key, mirror, *, shape, config) -> Prediction:
     positions, normals, radius, grid, near_grid = sensors
     return expected_jit(
-        positions, normals, radius, grid, params, source, key, near_grid,
+        positions, normals, radius, grid, params, source, key, near_grid, mirror,
         shape=shape, config=config,
     )
+
+
+@functools.partial(jax.jit, static_argnames=("shape",))
+def _mirror_paths_jit(sensors, source, *, shape) -> MirrorPaths:
+    positions, normals, radius, grid, near_grid = sensors
+    return mirror_paths(shape, grid, positions, normals, radius, source, near_grid)
+
+
+def run_mirror_paths(sensors, source, shape, config: TransportConfig) -> MirrorPaths | None:
+    """A run's first-order mirror paths (``transport.mirror.mirror_paths``), or None where
+    the expected mode has none (an open medium, or no bounces). The source of a run stays
+    put and the paths do not depend on ``Params``, so they are computed once per run
+    rather than in every evaluation of the expected mode (~0.1 s each on SK)."""
+    if not (shape.has_walls and config.n_bounces > 0):
+        return None
+    return _mirror_paths_jit(sensors, source, shape=shape)

@@ -129,14 +129,17 @@ def expected_jit(
     source,
     key,
     near_grid=None,
+    mirror=None,
     *,
     shape,
     config,
 ):
     """``expected`` on arrays: (N, 3) sensor centres m, (N, 3) inward unit normals, (N,)
     disc radii m, the lookup grid (or None), ``params`` and ``source`` of one float dtype,
-    a ``jax.random`` key and the near-sensor grid (``near_grid_for``; None: far-field
-    solid angles only); ``shape`` and ``config`` static. Returns a ``Prediction``."""
+    a ``jax.random`` key, the near-sensor grid (``near_grid_for``; None: far-field
+    solid angles only) and the source's first-order mirror paths
+    (``mirror.mirror_paths``; None: computed here); ``shape`` and ``config`` static.
+    Returns a ``Prediction``."""
     mu_direct, t_direct = direct_light_jit(
         sensor_positions, sensor_normals, sensor_radius, params, source
     )
@@ -150,6 +153,7 @@ def expected_jit(
         t_direct,
         key,
         near_grid,
+        mirror,
         shape=shape,
         config=config,
     )

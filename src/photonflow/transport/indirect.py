@@ -82,7 +82,7 @@ from ..geometry.shapes import Shape
 from ..params import Params
 from ..pytree import pytree_dataclass
 from .emission import sample_directions
-from .mirror import FOCUSING_LIMIT, focusing_ratio, mirror_light
+from .mirror import FOCUSING_LIMIT, MirrorPaths, focusing_ratio, mirror_light, mirror_paths
 from .optics import (
     TransportConfig,
     acceptance_at_cos,
@@ -465,6 +465,7 @@ def indirect_light_jit(
     reference_time,
     key,
     near_grid: SensorGrid | None = None,
+    mirror: MirrorPaths | None = None,
     *,
     shape: Shape,
     config: TransportConfig,
@@ -474,8 +475,11 @@ def indirect_light_jit(
     ``near_grid`` (a ``near_grid_for`` grid) makes the solid angle of discs near a vertex
     exact (None: the far-field formula everywhere). ``reference_time`` (N,) ns is
     subtracted from arrival times before the moments are accumulated (float32 accuracy;
-    the direct arrival time is a good choice); ``shape`` and ``config`` are static.
-    Returns an ``IndirectLight``.
+    the direct arrival time is a good choice). ``mirror``: the source's
+    ``mirror.mirror_paths``, computed once for a source that stays put (a calibration
+    run; they do not depend on ``Params``); None computes them here, differentiably in
+    the source position. ``shape`` and ``config`` are static. Returns an
+    ``IndirectLight``.
     """
     dtype = sensor_positions.dtype
     n = sensor_positions.shape[0]
@@ -581,11 +585,11 @@ def indirect_light_jit(
 
     carry = (origins, directions, weight, time, on_disc)
     orders = jnp.arange(1, config.n_bounces + 1)
-    mirror_paths = has_walls and config.n_bounces > 0
+    with_mirror = has_walls and config.n_bounces > 0
     # vertices of order k < n_bounces send specular probes (their mirror vertex, order
     # k + 1, is within the cap); the last order's vertices do not
     carry, (mirrored, detected) = jax.lax.scan(
-        functools.partial(step, with_probes=mirror_paths), carry, orders[:-1]
+        functools.partial(step, with_probes=with_mirror), carry, orders[:-1]
     )
     carry, (_, last) = step(carry, orders[-1], with_probes=False) if orders.size else (
         carry, ((), tuple(jnp.zeros((0, n), dtype) for _ in range(3)))
@@ -595,7 +599,7 @@ def indirect_light_jit(
     residual = _residual(params, has_walls, jnp.where(alive, weight, 0.0), t_end, hit)
     total = [jnp.concatenate([d, l[None]], axis=0) if orders.size else l
              for d, l in zip(detected, last, strict=True)]
-    if mirror_paths:
+    if with_mirror:
         # source light mirrored once into a sensor near caustics (the rest is
         # ``mirror_light``'s quadrature), from emission directions of its own; it and
         # the probes of order-k vertices are the light whose mirror vertex is order k + 1
@@ -611,10 +615,10 @@ def indirect_light_jit(
             t + jnp.concatenate([first[None], rest], axis=0)
             for t, first, rest in zip(total, source_mirrored, mirrored, strict=True)
         ]
-        mirrored = mirror_light(
-            params, shape, grid, sensor_positions, sensor_normals, sensor_radius, source,
-            reference_time, near_grid,
-        )
+        if mirror is None:
+            mirror = mirror_paths(shape, grid, sensor_positions, sensor_normals,
+                                  sensor_radius, source, near_grid)
+        mirrored = mirror_light(params, mirror, source, reference_time)
         total = [t.at[0].add(m) for t, m in zip(total, mirrored, strict=True)]
     charge, first, second = total
     positive = charge > 0

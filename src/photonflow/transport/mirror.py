@@ -58,6 +58,7 @@ import numpy as np
 from ..geometry.sensor_grid import grid_candidates_xyz
 from ..geometry.shapes import Box, Cylinder, Sphere
 from ..params import Params
+from ..pytree import pytree_dataclass
 from .optics import acceptance_at_cos, interaction_rates, safe_sqrt, travel_time
 from .solid_angle import plane_basis
 
@@ -502,25 +503,45 @@ def uncovered_share(near_grid, sensor_positions, sensor_normals, sensor_radius, 
     return 1.0 - jnp.where(complete[:, None], whole[:, None], nodes.astype(whole.dtype))
 
 
-def mirror_light(params: Params, shape, grid, sensor_positions, sensor_normals, sensor_radius,
-                 source, reference_time, near_grid=None):
-    """First-order specular light from the source per sensor (see the module docstring).
+@pytree_dataclass
+class MirrorPaths:
+    """The first-order mirror paths of one source (``mirror_paths``): the part of
+    ``mirror_light`` that does not depend on ``Params``, for T = 7 N quadrature nodes
+    (disc by disc) and M reflection slots per node.
+
+    Attributes:
+        weight: (T, M) m^2/sr-normalised light per emitted photon and unit specular
+            reflectivity R_w f_s, before QE, efficiency, acceptance and attenuation: the
+            emission density toward the wall point (1/sr) x cos_in / the ray tube's area
+            per sr (m^2/sr) x the node's area (m^2) x the share of it over bare wall;
+            0 where the path does not count (no reflection, the wall under a disc, the
+            disc facing away, or focused below ``FOCUSING_LIMIT``: left to the rays).
+        cos_in: (T, M) cosine of the incidence on the disc at the node.
+        path: (T, M) m, source -> wall -> node.
+    """
+
+    weight: jax.Array
+    cos_in: jax.Array
+    path: jax.Array
+
+
+def mirror_paths(shape, grid, sensor_positions, sensor_normals, sensor_radius, source,
+                 near_grid=None) -> MirrorPaths:
+    """The first-order mirror paths from ``source`` to every sensor (``MirrorPaths``).
 
     Args:
-        params: detector parameters (reflectivities, lengths m, offsets ns).
         shape: the walled ``Shape`` (``Cylinder``, ``Sphere`` or ``Box``).
         grid: its sensor lookup grid (for the wall under sensor discs).
         sensor_positions, sensor_normals, sensor_radius: (N, 3) m, (N, 3), (N,) m.
-        source: a calibration source (position m, time ns, ``emission_density``).
-        reference_time: (N,) ns subtracted from arrival times.
+        source: a calibration source (position m, ``emission_density``).
         near_grid: a grid listing every disc within a few radii of a point
             (``indirect.near_grid_for``), for the wall under other discs across a
             disc's whole mirrored patch; None: ``grid`` (which lists only the discs
             within r + ``BASE_MARGIN`` of a point, too few for patches larger than that).
 
-    Returns:
-        (N,) sums of c, c t and c t^2: c expected p.e., t arrival time minus the
-        reference (ns; before transit-time spread and pulse width).
+    Differentiable in the source position (the roots by their implicit-function
+    derivative, the covered share chord by chord). For a fixed source (a calibration
+    run) it can be computed once and passed to ``mirror_light`` at every ``Params``.
     """
     n = sensor_positions.shape[0]
     nodes, node_area = disc_nodes(sensor_positions, sensor_normals, sensor_radius)
@@ -547,30 +568,47 @@ def mirror_light(params: Params, shape, grid, sensor_positions, sensor_normals, 
     counts = valid & (uncovered > 0) & (cos_in > 0)
     counts = counts & (jax.lax.stop_gradient(focusing) >= FOCUSING_LIMIT)
 
-    rate_total = interaction_rates(params)[3]
     path = l_in + l_out
     safe_tube = jnp.where(counts, focusing * path * path, 1.0)  # ray-tube area per sr
+    weight = (
+        source.emission_density(emission)
+        * jnp.maximum(cos_in, 0.0)
+        / safe_tube
+        * node_area.reshape(-1)[:, None]
+        * uncovered
+    )
+    return MirrorPaths(weight=jnp.where(counts, weight, 0.0), cos_in=cos_in, path=path)
+
+
+def mirror_light(params: Params, paths: MirrorPaths, source, reference_time):
+    """First-order specular light from the source per sensor (see the module docstring).
+
+    Args:
+        params: detector parameters (reflectivities, lengths m, offsets ns).
+        paths: the source's ``mirror_paths``.
+        source: the same source (photons, time ns).
+        reference_time: (N,) ns subtracted from arrival times.
+
+    Returns:
+        (N,) sums of c, c t and c t^2: c expected p.e., t arrival time minus the
+        reference (ns; before transit-time spread and pulse width).
+    """
+    n = reference_time.shape[0]
+    receiver = jnp.repeat(jnp.arange(n), paths.weight.shape[0] // n)
+    rate_total = interaction_rates(params)[3]
     detected = (
         source.n_photons
         * params.wall_reflectivity
         * params.wall_specular_fraction
-        * source.emission_density(emission)
-        * jnp.maximum(cos_in, 0.0)
-        / safe_tube
-        * node_area.reshape(-1)[:, None]
+        * paths.weight
         * params.quantum_efficiency
         * params.efficiency[receiver][:, None]
-        * acceptance_at_cos(params.angular_acceptance, jnp.maximum(cos_in, 0.0))
-        * jnp.exp(-rate_total * path)
-        * uncovered
+        * acceptance_at_cos(params.angular_acceptance, jnp.maximum(paths.cos_in, 0.0))
+        * jnp.exp(-rate_total * paths.path)
     )
-    detected = jnp.where(counts, detected, 0.0)
     relative = (
         source.time
-        + travel_time(path, params)
+        + travel_time(paths.path, params)
         + (params.time_offset - reference_time)[receiver][:, None]
     )
-    per_receiver = [
-        jnp.sum((detected * relative**k).reshape(n, -1), axis=1) for k in range(3)
-    ]
-    return tuple(per_receiver)
+    return tuple(jnp.sum((detected * relative**k).reshape(n, -1), axis=1) for k in range(3))
