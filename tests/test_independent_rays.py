@@ -21,6 +21,7 @@ from photonflow.calibration.objective import (
     summed_charge_nll,
 )
 from photonflow.calibration.runs import prepare_runs
+from photonflow.errors import ConfigError
 from photonflow.transport.optics import TransportConfig
 from photonflow.transport.pseudo_data import sample_events
 
@@ -103,3 +104,43 @@ def test_fit_extrapolates_the_roots_with_one_and_more_ray_sets(toy):
     for name in FREE:  # the same one-set root as the extrapolating fit's
         assert plain.history[-1]["values"][name] == pytest.approx(one[name], rel=1e-5)
         assert float(getattr(plain.params, name)) == pytest.approx(one[name], rel=1e-5)
+
+
+def test_score_weights_averaged_over_ray_sets_are_kept_for_the_stage(toy):
+    """``independent_ray_curvature(jacobians=...)`` uses the given weights J_b: one set of
+    ``independent_jacobians`` reproduces the default score exactly, three sets give
+    their average and a different score. ``calibrate(jacobian_sets=3)`` converges with
+    one Jacobian per run and step, records the setting, and refuses a bad value."""
+    detector, truth, runs, start = toy
+    problem = CalibrationProblem(detector, prepare_runs(runs, detector, "charge"), start,
+                                 free_layout(list(FREE), detector.n_sensors), "charge",
+                                 CONFIG, jax.random.key(3))
+    theta = problem.initial_theta()
+    default = problem.independent_ray_curvature(theta)
+    single = problem.independent_jacobians(theta, 1)
+    one = problem.independent_ray_curvature(theta, jacobians=single)
+    np.testing.assert_allclose(one.grad_dense, default.grad_dense, rtol=1e-6)
+    np.testing.assert_allclose(one.newton.a, default.newton.a, rtol=1e-6)
+
+    averaged = problem.independent_jacobians(theta, 3)
+    for jac, data, static, key in zip(averaged, problem.arrays, problem.statics,
+                                      problem.jacobian_keys, strict=True):
+        sets = [np.asarray(problem._jacobian(theta, data, static, k)[1], np.float64)
+                for k in ray_set_keys(key, 3)]
+        np.testing.assert_allclose(np.asarray(jac, np.float64), np.mean(sets, axis=0),
+                                   rtol=1e-5, atol=1e-6 * np.abs(sets).max())
+    three = problem.independent_ray_curvature(theta, jacobians=averaged)
+    for used, given in zip(three.jacobians, averaged, strict=True):
+        assert used is given
+    assert np.max(np.abs(three.grad_dense - default.grad_dense)) > 1e-3 * np.max(
+        np.abs(default.grad_dense))
+
+    result = calibrate(detector, runs, start, list(FREE), config=CONFIG, truth=truth,
+                       key=jax.random.key(5), jacobian_sets=3)
+    assert result.converged, result.message
+    assert result.settings["jacobian_sets"] == 3
+    for name in FREE:
+        assert abs(float(getattr(result.params, name)) - float(getattr(truth, name))) < (
+            4 * float(getattr(result.errors, name)))
+    with pytest.raises(ConfigError, match="jacobian_sets = 0"):
+        calibrate(detector, runs, start, list(FREE), config=CONFIG, jacobian_sets=0)

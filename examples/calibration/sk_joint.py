@@ -122,7 +122,8 @@ PSEUDO_DATA = {"sampled": sampled_events, "expected": surrogate_events}
 
 
 def experiment(detector, seed: int, photons: float, rays: int, free: list[str],
-               pseudo_data: str = "sampled", ray_extrapolation: bool = False) -> dict:
+               pseudo_data: str = "sampled", ray_extrapolation: bool = False,
+               jacobian_sets: int | None = None) -> dict:
     """One pseudo-experiment: pseudo-data with efficiencies and Poisson draws from
     ``seed`` (sampled mode, or the expected mode as a diagnostic), the fit with ray key
     ``seed``; returns the numbers the summary needs."""
@@ -153,7 +154,7 @@ def experiment(detector, seed: int, photons: float, rays: int, free: list[str],
 
     result = calibrate(detector, runs, start, free, config=config, truth=truth,
                        callback=report, key=jax.random.key(seed),
-                       ray_extrapolation=ray_extrapolation)
+                       ray_extrapolation=ray_extrapolation, jacobian_sets=jacobian_sets)
     row = {"seed": seed, "converged": result.converged, "message": result.message,
            "iterations": len(result.history) - 1, "pseudo_data_s": simulated,
            "fit_s": result.wall_time_s, "optics": {}}
@@ -221,6 +222,9 @@ def main() -> None:
                         help="expected: diagnostic Poisson draws around the expected mode")
     parser.add_argument("--ray-extrapolation", action="store_true",
                         help="extrapolate the fit's root to infinitely many rays")
+    parser.add_argument("--jacobian-sets", type=int, default=None,
+                        help="average the independent-ray score's weights over this many"
+                             " ray sets once (default: a fresh set every step)")
     parser.add_argument("--out", help="JSON file for the per-experiment numbers")
     args = parser.parse_args()
 
@@ -228,7 +232,8 @@ def main() -> None:
     rows = []
     for seed in range(args.seed, args.seed + args.experiments):
         rows.append(experiment(detector, seed, args.photons, args.rays, args.free.split(","),
-                               args.pseudo_data, args.ray_extrapolation))
+                               args.pseudo_data, args.ray_extrapolation,
+                               args.jacobian_sets))
         if args.out:
             with open(args.out, "w") as handle:
                 json.dump({"settings": vars(args), "experiments": rows}, handle, indent=1)

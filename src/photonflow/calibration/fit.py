@@ -127,7 +127,7 @@ EXTRAPOLATION_SETS = 2
 def _root_steps(
     problem: CalibrationProblem, theta: dict, history: list, started: float,
     step_tolerance: float, callback, *, charge_sets: int, ray_noise, stage: str,
-    frozen: IndependentRayParts | None = None,
+    frozen: IndependentRayParts | None = None, jacobians: tuple | None = None,
 ) -> tuple[dict, IndependentRayParts, RayNoiseSets, bool, float, int]:
     """Newton steps to the root of the independent-ray score with M_a averaged over
     ``charge_sets`` ray sets (``CalibrationProblem.independent_ray_curvature``), until a
@@ -135,14 +135,16 @@ def _root_steps(
     ``ray_noise`` the first step is uncorrected and the ray-noise sets are drawn after
     it. With ``frozen`` (the parts of a nearby point) the steps reuse its Newton matrix
     and derivatives J_b, and compute only the expected charges
-    (``CalibrationProblem.independent_ray_score``). Appends every step to ``history``
-    with ``"stage": stage``. Returns (theta, the parts of the last step (``frozen`` if
-    given), the ray-noise sets, converged, last step size in sigma, steps)."""
+    (``CalibrationProblem.independent_ray_score``); otherwise, with ``jacobians`` (per
+    run, J_b), every step uses those weights and computes only M_a and J_a. Appends
+    every step to ``history`` with ``"stage": stage``. Returns (theta, the parts of the
+    last step (``frozen`` if given), the ray-noise sets, converged, last step size in
+    sigma, steps)."""
     size, converged, count, parts = np.inf, False, 0, frozen
     while not converged and count < INDEPENDENT_RAY_STEPS:
         count += 1
         if frozen is None:
-            parts = problem.independent_ray_curvature(theta, ray_noise, charge_sets)
+            parts = problem.independent_ray_curvature(theta, ray_noise, charge_sets, jacobians)
             loss, grad_dense, grad_sensor = parts.loss, parts.grad_dense, parts.grad_sensor
         else:
             loss, grad_dense, grad_sensor = problem.independent_ray_score(
@@ -173,6 +175,7 @@ def _record(problem, theta, history, started, callback, loss, stage=None) -> Non
 def _independent_ray_steps(
     problem: CalibrationProblem, theta: dict, history: list, started: float,
     step_tolerance: float, callback, extrapolate: bool = False,
+    jacobian_sets: int | None = None,
 ) -> tuple[dict, float, SandwichCovariance, bool, str]:
     """From the minimum of -log L to the root of the independent-ray score
     (``CalibrationProblem.independent_ray_curvature``), with ``extrapolate`` extrapolated
@@ -192,9 +195,15 @@ def _independent_ray_steps(
     correlation shifts the optical parameters by many sigma at campaign statistics
     (docs/calibration.md). The root of the score with J from independent rays has no
     such correlation; Newton steps on the score's expected derivative reach it in a few
-    steps. The first step goes from the minimum to near the root; there the ray-noise
-    sets (``CalibrationProblem.ray_noise_sets``) are drawn once, and the later steps
-    also remove the second-order (Jensen) bias that the ray noise of M puts into dL/dM.
+    steps. The score's weights J_b come from a fresh independent ray set at every step,
+    or with ``jacobian_sets`` = K are averaged over K independent sets once, at the
+    minimum, and kept: weights independent of the noise of M_a and of the data leave
+    the score unbiased at the truth wherever they are taken, a few sigma from the root
+    they are as good as the root's own, and averaged they have 1/K of the ray noise
+    that costs the root efficiency and scatter. The first step goes from the minimum to
+    near the root; there the ray-noise sets (``CalibrationProblem.ray_noise_sets``) are
+    drawn once, and the later steps also remove the second-order (Jensen) bias that the
+    ray noise of M puts into dL/dM.
     What bias the ray noise leaves in the root is of order 1/(rays), from the noise of
     M_a (with J_a) and of J_b alike: the root with both averaged over K ray sets
     (K = ``EXTRAPOLATION_SETS``; ``CalibrationProblem.independent_jacobians``) has 1/K
@@ -207,9 +216,11 @@ def _independent_ray_steps(
     K-set J_b at theta_1, and compute only expected charges: the root of the score with
     J_b fixed at theta_1 differs from the one with J_b moving along only at the second
     order of the distance theta_K - theta_1 (a fraction of sigma)."""
+    weights = None if jacobian_sets is None else problem.independent_jacobians(
+        theta, jacobian_sets)
     theta_one, parts, ray_noise, converged, size, count = _root_steps(
         problem, theta, history, started, step_tolerance, callback,
-        charge_sets=1, ray_noise=None, stage="independent rays",
+        charge_sets=1, ray_noise=None, stage="independent rays", jacobians=weights,
     )
     covariance = problem.ray_noise_covariance(parts, ray_noise)
     _record_ray_noise(problem, history[-1], parts, covariance)
@@ -296,6 +307,7 @@ def calibrate(
     callback: Callable[[int, float, dict], None] | None = None,
     offset_start: str = "median",
     ray_extrapolation: bool = False,
+    jacobian_sets: int | None = None,
 ) -> CalibrationResult:
     """Fit the ``free`` fields of ``Params`` to calibration runs.
 
@@ -335,6 +347,10 @@ def calibrate(
             detector (-0.5 sigma on the toy at 64 rays), but at SK's 1,024 rays the
             bias it removes is within the noise and the result scatters more (pull
             widths 1.1-1.4 instead of 1.0-1.1; docs/calibration.md). Off by default.
+        jacobian_sets: with the independent-ray stage, the number K of independent ray
+            sets over which the score's weights J_b are averaged once, where the stage
+            starts, and kept for all its steps (one Jacobian per run and step instead of
+            two; K more once). None (default): a fresh set at every step.
 
     Returns:
         ``CalibrationResult`` (fitted params, errors, correlation, history).
@@ -354,6 +370,8 @@ def calibrate(
     key = jax.random.key(0) if key is None else key
     if offset_start not in ("median", "init"):
         raise ConfigError(f"offset_start = {offset_start!r}: must be 'median' or 'init'")
+    if jacobian_sets is not None and not (isinstance(jacobian_sets, int) and jacobian_sets >= 1):
+        raise ConfigError(f"jacobian_sets = {jacobian_sets!r}: must be None or an integer >= 1")
     prepared = prepare_runs(runs, detector, likelihood)
     problem = CalibrationProblem(detector, prepared, init_params, layout, likelihood, config, key)
 
@@ -401,7 +419,8 @@ def calibrate(
 
     if problem.has_independent_rays and converged:
         theta, loss, curvature, converged, message = _independent_ray_steps(
-            problem, theta, history, started, step_tolerance, callback, ray_extrapolation
+            problem, theta, history, started, step_tolerance, callback, ray_extrapolation,
+            jacobian_sets,
         )
     else:
         loss, _, _, curvature = problem.curvature(theta)
@@ -432,6 +451,7 @@ def calibrate(
             "loss_tolerance": loss_tolerance,
             "step_tolerance": step_tolerance,
             "ray_extrapolation": bool(ray_extrapolation),
+            "jacobian_sets": jacobian_sets,
         },
         runs=run_provenance(prepared),
         detector={"name": detector.name, "n_sensors": detector.n_sensors},

@@ -621,7 +621,8 @@ class CalibrationProblem:
         return value, grad_dense, grad_sensor, StructuredMatrix(a, c, b)
 
     def independent_ray_curvature(
-        self, theta: dict, ray_noise: RayNoiseSets | None = None, charge_sets: int = 1
+        self, theta: dict, ray_noise: RayNoiseSets | None = None, charge_sets: int = 1,
+        jacobians: tuple | None = None,
     ) -> IndependentRayParts:
         """The independent-ray estimating equation at ``theta`` (``has_independent_rays``
         only): every run's expected charges M_a come from its own rays and the
@@ -632,18 +633,25 @@ class CalibrationProblem:
         (Jensen) bias that the ray noise of M_a puts into dL/dM; without it, none. With
         ``charge_sets`` = K > 1, M_a and J_a are the averages over the run's own rays and
         K - 1 further sets (``ray_set_keys``), so their ray noise (and the bias
-        correction) has 1/K of the variance. Float64 numpy. The root is free of the bias
-        that the correlated ray noise of M and J puts into the minimum of -log L
+        correction) has 1/K of the variance. With ``jacobians`` (per run, J_b (N, T), e.g.
+        ``independent_jacobians`` of a nearby point) those are the score's weights
+        instead of a fresh set: any weights independent of the noise of M_a and of the
+        data keep the score unbiased at the truth, and weights with less ray noise make
+        the root more efficient. Float64 numpy. The root is free of the bias that the
+        correlated ray noise of M and J puts into the minimum of -log L
         (docs/calibration.md, "Ray noise and the independent-ray score")."""
-        per_run, jacobians = [], []
-        for data, static, jacobian_key, variance, keys in self._independent_ray_inputs(
-            ray_noise, charge_sets
+        per_run, used = [], []
+        inputs = self._independent_ray_inputs(ray_noise, charge_sets)
+        given = [None] * len(inputs) if jacobians is None else jacobians
+        for (data, static, jacobian_key, variance, keys), jac_b in zip(
+            inputs, given, strict=True
         ):
             sets = [self._jacobian(theta, data, static, key) for key in keys]
             mean = sum(m for m, _ in sets) / len(sets)
             jac_a = sum(j for _, j in sets) / len(sets)
-            _, jac_b = self._jacobian(theta, data, static, jacobian_key)
-            jacobians.append(jac_b)
+            if jac_b is None:
+                _, jac_b = self._jacobian(theta, data, static, jacobian_key)
+            used.append(jac_b)
             per_run.append(_independent_ray_jit(theta, self.base, data, mean, jac_a, jac_b,
                                                 variance, static=static))
         value, (grad_dense, grad_sensor, bias_dense, bias_sensor, *blocks) = self._summed(
@@ -652,7 +660,7 @@ class CalibrationProblem:
         return IndependentRayParts(
             value, grad_dense, grad_sensor, bias_dense, bias_sensor,
             StructuredMatrix(*blocks[:4]), StructuredMatrix(*blocks[4:]),
-            tuple(np.asarray(run[-1], np.float64) for run in per_run), tuple(jacobians),
+            tuple(np.asarray(run[-1], np.float64) for run in per_run), tuple(used),
         )
 
     def independent_ray_score(
