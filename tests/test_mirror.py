@@ -189,28 +189,36 @@ def test_mirror_light_agrees_with_mirrored_rays(name):
 
 def test_mirror_paths_computed_once_give_the_same_prediction():
     """The expected mode with a source's mirror paths passed in (a calibration run computes
-    them once) equals the one that computes them itself, in value and in the gradient in
-    the reflectivity, absorption length and one efficiency; and the paths carry light."""
+    them once) equals the one that computes them itself, in value and in the derivative
+    along the wall reflectivity, the absorption length and one efficiency together
+    (float64, so that only rounding can differ); and the paths carry light."""
     detector = preset_detector("TOY_CYLINDER")
-    params = default_params(detector).replace(wall_reflectivity=0.3, wall_specular_fraction=0.8)
-    source = IsotropicSource(position=[0.3, -0.2, 0.5], n_photons=1e6)
-    source = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), source)
-    positions, normals, radius, grid, near_grid = expected_inputs(detector, jnp.float32)
-    config = TransportConfig(n_bounces=2, n_rays=256)
-    paths = mirror_paths(detector.shape, grid, positions, normals, radius, source, near_grid)
-    assert float(jnp.sum(paths.weight)) > 0
+    with jax.enable_x64(True):
+        params = default_params(detector).replace(
+            wall_reflectivity=0.3, wall_specular_fraction=0.8)
+        source = IsotropicSource(position=[0.3, -0.2, 0.5], n_photons=1e6)
+        source = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), source)
+        positions, normals, radius, grid, near_grid = expected_inputs(detector, jnp.float64)
+        config = TransportConfig(n_bounces=1, n_rays=64)
+        paths = mirror_paths(detector.shape, grid, positions, normals, radius, source,
+                             near_grid)
+        assert float(jnp.sum(paths.weight)) > 0
 
-    def charge(values, mirror):
-        wall, absorption, efficiency = values
-        changed = params.replace(wall_reflectivity=wall, absorption_length=absorption,
-                                 efficiency=params.efficiency.at[3].set(efficiency))
-        return jnp.sum(expected_jit(positions, normals, radius, grid, changed, source,
-                                    jax.random.key(2), near_grid, mirror,
-                                    shape=detector.shape, config=config).charge ** 1.5)
+        def charge(values, mirror):
+            wall, absorption, efficiency = values
+            changed = params.replace(wall_reflectivity=wall, absorption_length=absorption,
+                                     efficiency=params.efficiency.at[3].set(efficiency))
+            return expected_jit(positions, normals, radius, grid, changed, source,
+                                jax.random.key(2), near_grid, mirror,
+                                shape=detector.shape, config=config).charge
 
-    at = (jnp.float32(0.3), jnp.float32(float(params.absorption_length)), jnp.float32(1.0))
-    inside, inside_grad = jax.value_and_grad(charge)(at, None)
-    given, given_grad = jax.value_and_grad(charge)(at, paths)
-    np.testing.assert_allclose(float(given), float(inside), rtol=1e-6)
-    for a, b in zip(given_grad, inside_grad, strict=True):
-        np.testing.assert_allclose(float(a), float(b), rtol=1e-5)
+        at = tuple(jnp.float64(v) for v in (0.3, float(params.absorption_length), 1.0))
+        along = tuple(jnp.float64(v) for v in (1.0, -50.0, 0.5))
+        inside, inside_slope = jax.jvp(lambda v: charge(v, None), (at,), (along,))
+        given, given_slope = jax.jvp(lambda v: charge(v, paths), (at,), (along,))
+        inside, inside_slope, given, given_slope = (
+            np.asarray(x) for x in (inside, inside_slope, given, given_slope))
+    assert np.sum(np.abs(inside_slope)) > 0
+    np.testing.assert_allclose(given, inside, rtol=1e-9)
+    np.testing.assert_allclose(given_slope, inside_slope, rtol=1e-9,
+                               atol=1e-12 * np.max(np.abs(inside_slope)))
