@@ -202,6 +202,7 @@ def test_file_without_run_settings_is_refused(tmp_path):
         (["--method", "newton"], "method"),
         (["--likelihood", "time"], "--likelihood"),
         (["--rays", "0"], "--rays"),
+        (["--jacobian-sets", "0"], "--jacobian-sets = 0"),
     ],
 )
 def test_bad_options_are_one_line(run_file, tmp_path, args, fragment):

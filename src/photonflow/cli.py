@@ -501,6 +501,10 @@ def calibrate(
         "--ray-extrapolation",
         help="Extrapolate the optics to infinitely many rays (few rays; see"
              " docs/calibration.md).")] = False,
+    jacobian_sets: Annotated[int | None, typer.Option(
+        "--jacobian-sets",
+        help="Average the independent-ray score's weights over this many ray sets, once"
+             " (default: a fresh set every step; docs/calibration.md).")] = None,
 ) -> None:
     """Fit detector parameters (absorption and scattering lengths, reflectivities,
     per-sensor efficiency and time offset, ...) to calibration runs and write the result
@@ -520,11 +524,12 @@ def calibrate(
     if not files:
         raise ConfigError("FILE: give at least one event file of a calibration run")
     _calibration_fit(files, out, detector, free, init, method, likelihood, rays, bounces,
-                     max_iterations, ray_extrapolation)
+                     max_iterations, ray_extrapolation, jacobian_sets)
 
 
 def _calibration_fit(files, out, detector, free, init, method, likelihood, rays, bounces,
-                     max_iterations, ray_extrapolation: bool = False) -> None:
+                     max_iterations, ray_extrapolation: bool = False,
+                     jacobian_sets: int | None = None) -> None:
     """``calibrate FILE... --out``: read the runs, fit with a live display, print the
     table, save the result."""
     from rich.live import Live
@@ -545,6 +550,8 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
         raise ConfigError(f"--bounces = {bounces}: must be >= 0")
     if max_iterations < 1:
         raise ConfigError(f"--max-iterations = {max_iterations}: must be >= 1")
+    if jacobian_sets is not None and jacobian_sets < 1:
+        raise ConfigError(f"--jacobian-sets = {jacobian_sets}: must be >= 1")
     if likelihood not in LIKELIHOODS:
         raise ConfigError(f"--likelihood = {likelihood!r}: must be one of {', '.join(LIKELIHOODS)}")
     make_method(method)
@@ -569,7 +576,7 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
                 setup.detector, runs.runs, start, list(layout.names), method=method,
                 likelihood=likelihood, config=config, truth=runs.truth,
                 max_iterations=max_iterations, callback=_FitProgress(live),
-                ray_extrapolation=ray_extrapolation,
+                ray_extrapolation=ray_extrapolation, jacobian_sets=jacobian_sets,
             )
     console().print(calibration_rich_table(result))
     try:
