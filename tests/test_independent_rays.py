@@ -106,11 +106,12 @@ def test_fit_extrapolates_the_roots_with_one_and_more_ray_sets(toy):
         assert float(getattr(plain.params, name)) == pytest.approx(one[name], rel=1e-5)
 
 
-def test_score_weights_averaged_over_ray_sets_are_kept_for_the_stage(toy):
+def test_score_weights_averaged_over_ray_sets_are_kept_for_the_stage(toy, monkeypatch):
     """``independent_ray_curvature(jacobians=...)`` uses the given weights J_b: one set of
     ``independent_jacobians`` reproduces the default score exactly, three sets give
     their average and a different score. ``calibrate(jacobian_sets=3)`` converges with
-    one Jacobian per run and step, records the setting, and refuses a bad value."""
+    one Jacobian per run and step, draws the weights once (also for the extrapolation's
+    second root), records the setting, and refuses a bad value."""
     detector, truth, runs, start = toy
     problem = CalibrationProblem(detector, prepare_runs(runs, detector, "charge"), start,
                                  free_layout(list(FREE), detector.n_sensors), "charge",
@@ -135,10 +136,23 @@ def test_score_weights_averaged_over_ray_sets_are_kept_for_the_stage(toy):
     assert np.max(np.abs(three.grad_dense - default.grad_dense)) > 1e-3 * np.max(
         np.abs(default.grad_dense))
 
+    drawn = []
+    original = CalibrationProblem.independent_jacobians
+
+    def spy(self, theta, n_sets):
+        drawn.append(n_sets)
+        return original(self, theta, n_sets)
+
+    monkeypatch.setattr(CalibrationProblem, "independent_jacobians", spy)
     result = calibrate(detector, runs, start, list(FREE), config=CONFIG, truth=truth,
-                       key=jax.random.key(5), jacobian_sets=3)
+                       key=jax.random.key(5), jacobian_sets=3, ray_extrapolation=True)
     assert result.converged, result.message
     assert result.settings["jacobian_sets"] == 3
+    # the weights are drawn once, where the stage starts; the extrapolation's second
+    # root keeps them (no fresh EXTRAPOLATION_SETS-set weights), so J_b's noise cancels
+    # in the extrapolated shift
+    assert drawn == [3]
+    assert result.history[-1]["stage"] == "extrapolated"
     for name in FREE:
         assert abs(float(getattr(result.params, name)) - float(getattr(truth, name))) < (
             4 * float(getattr(result.errors, name)))

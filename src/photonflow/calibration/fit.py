@@ -215,7 +215,11 @@ def _independent_ray_steps(
     theta_K start at theta_1, reuse the Newton matrix of theta_1's last step and the
     K-set J_b at theta_1, and compute only expected charges: the root of the score with
     J_b fixed at theta_1 differs from the one with J_b moving along only at the second
-    order of the distance theta_K - theta_1 (a fraction of sigma)."""
+    order of the distance theta_K - theta_1 (a fraction of sigma). With ``jacobian_sets``
+    the steps to theta_K keep theta_1's own averaged weights instead: the two roots then
+    differ only by the ray sets of M_a, J_b's noise cancels in theta_K - theta_1, and the
+    extrapolation removes the O(1/rays) bias of M_a's noise (correlated with J_a's)
+    without the amplified J_b noise that widens the pulls."""
     weights = None if jacobian_sets is None else problem.independent_jacobians(
         theta, jacobian_sets)
     theta_one, parts, ray_noise, converged, size, count = _root_steps(
@@ -234,7 +238,11 @@ def _independent_ray_steps(
     if not extrapolate:
         return theta_one, problem.value(theta_one), covariance, True, message
     sets = EXTRAPOLATION_SETS
-    frozen = dataclasses.replace(parts, jacobians=problem.independent_jacobians(theta_one, sets))
+    if weights is None:
+        frozen = dataclasses.replace(
+            parts, jacobians=problem.independent_jacobians(theta_one, sets))
+    else:  # theta_1's own weights: their noise cancels in theta_K - theta_1
+        frozen = parts
     theta_many, _, _, converged, size_many, count_many = _root_steps(
         problem, theta_one, history, started, step_tolerance, callback,
         charge_sets=sets, ray_noise=ray_noise, stage=f"independent rays, {sets} sets",
@@ -346,7 +354,9 @@ def calibrate(
             bias of order 1/(rays), which matters when the rays are few for the
             detector (-0.5 sigma on the toy at 64 rays), but at SK's 1,024 rays the
             bias it removes is within the noise and the result scatters more (pull
-            widths 1.1-1.4 instead of 1.0-1.1; docs/calibration.md). Off by default.
+            widths 1.1-1.4 instead of 1.0-1.1; docs/calibration.md). With
+            ``jacobian_sets`` both roots use the same averaged weights J_b, whose noise
+            then cancels in the extrapolation. Off by default.
         jacobian_sets: with the independent-ray stage, the number K of independent ray
             sets over which the score's weights J_b are averaged once, where the stage
             starts, and kept for all its steps (one Jacobian per run and step instead of
