@@ -121,20 +121,26 @@ def surrogate_events(detector, truth, source, seed: int, config: TransportConfig
 PSEUDO_DATA = {"sampled": sampled_events, "expected": surrogate_events}
 
 
+def campaign_start(detector, truth):
+    """The fit's start: the preset's parameters (every efficiency 1) with the optics 25 %
+    away from ``truth``'s, absorption and sensor reflectivity above, scattering and wall
+    reflectivity below."""
+    return pf.default_params(detector).replace(
+        absorption_length=float(truth.absorption_length) * 1.25,
+        scattering_length=float(truth.scattering_length) * 0.75,
+        wall_reflectivity=float(truth.wall_reflectivity) * 0.75,
+        sensor_reflectivity=float(truth.sensor_reflectivity) * 1.25,
+    )
+
+
 def experiment(detector, seed: int, photons: float, rays: int, free: list[str],
                pseudo_data: str = "sampled", ray_extrapolation: bool = False,
                jacobian_sets: int | None = None) -> dict:
     """One pseudo-experiment: pseudo-data with efficiencies and Poisson draws from
     ``seed`` (sampled mode, or the expected mode as a diagnostic), the fit with ray key
     ``seed``; returns the numbers the summary needs."""
-    nominal = pf.default_params(detector)
     truth = campaign_truth(detector, seed)
-    start = nominal.replace(
-        absorption_length=float(truth.absorption_length) * 1.25,
-        scattering_length=float(truth.scattering_length) * 0.75,
-        wall_reflectivity=float(truth.wall_reflectivity) * 0.75,
-        sensor_reflectivity=float(truth.sensor_reflectivity) * 1.25,
-    )
+    start = campaign_start(detector, truth)
     config = TransportConfig(n_bounces=2, n_rays=rays)
     sources = campaign_sources(detector, photons)
     began = time.perf_counter()
