@@ -158,3 +158,29 @@ def test_score_weights_averaged_over_ray_sets_are_kept_for_the_stage(toy, monkey
             4 * float(getattr(result.errors, name)))
     with pytest.raises(ConfigError, match="jacobian_sets = 0"):
         calibrate(detector, runs, start, list(FREE), config=CONFIG, jacobian_sets=0)
+
+
+def test_a_stage_that_runs_off_to_non_finite_charges_is_refused_in_one_line(toy, monkeypatch):
+    """When the independent-ray score or its Newton matrix stops being finite (a step to
+    a vanishing absorption length with too few rays), ``calibrate`` raises a one-line
+    ``ConfigError`` naming the stage, the iteration and the free values, instead of
+    failing inside the linear algebra (``LinAlgError`` from the per-sensor blocks)."""
+    detector, truth, runs, start = toy
+    original = CalibrationProblem.independent_ray_curvature
+    calls = []
+
+    def poisoned(self, theta, *args, **kwargs):
+        parts = original(self, theta, *args, **kwargs)
+        calls.append(1)
+        if len(calls) < 2:
+            return parts
+        newton = dataclasses.replace(parts.newton, a=np.full_like(parts.newton.a, np.nan))
+        return dataclasses.replace(parts, newton=newton)
+
+    monkeypatch.setattr(CalibrationProblem, "independent_ray_curvature", poisoned)
+    with pytest.raises(ConfigError) as error:
+        calibrate(detector, runs, start, list(FREE), config=CONFIG, key=jax.random.key(5))
+    message = str(error.value)
+    assert "\n" not in message and len(calls) == 2
+    assert message.startswith("independent rays, iteration ")
+    assert "not finite at absorption_length " in message and "scattering_length" in message

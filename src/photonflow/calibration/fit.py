@@ -74,6 +74,26 @@ def _refuse_runaway(theta: dict, iteration: int) -> None:
         )
 
 
+def _refuse_non_finite(problem: CalibrationProblem, theta: dict, stage: str,
+                       iteration: int, loss: float, grad_dense: np.ndarray,
+                       grad_sensor: np.ndarray, newton: StructuredMatrix) -> None:
+    """Raise a one-line ``ConfigError`` when -log L, the score or the Newton matrix at
+    ``theta`` is not finite: a step took the free values where the expected charges
+    vanish or overflow (e.g. an absorption length of 1e-36 m after a Newton step from a
+    minimum that the expected mode's ray noise had run off), and solving on would fail
+    inside the linear algebra. Names the dense free values there."""
+    if (np.isfinite(loss) and np.all(np.isfinite(grad_dense))
+            and np.all(np.isfinite(grad_sensor)) and newton.finite):
+        return
+    values = ", ".join(f"{name} {value:.3g}" for name, value in
+                       _dense_values(problem, problem.params_of(theta)).items())
+    raise ConfigError(
+        f"{stage}, iteration {iteration}: -log L or its derivatives are not finite at"
+        f" {values} (the fit ran off); use more rays (TransportConfig.n_rays) or runs"
+        " that constrain the free values better"
+    )
+
+
 #: A free value whose physical units change by less than this per unit of its
 #: unconstrained coordinate sits at the edge of its range (a probability within 1e-6 of
 #: 0 or 1, an efficiency below 1e-6): its error is reported as infinite, since a
@@ -149,6 +169,8 @@ def _root_steps(
         else:
             loss, grad_dense, grad_sensor = problem.independent_ray_score(
                 theta, frozen.jacobians, ray_noise, charge_sets)
+        _refuse_non_finite(problem, theta, stage, len(history) - 1, loss, grad_dense, grad_sensor,
+                           parts.newton)
         step_dense, step_sensor = parts.newton.solve(-grad_dense, -grad_sensor)
         size = sigma_step_size(parts.covariance(), step_dense, step_sensor)
         theta = take_step(problem, theta, step_dense, step_sensor)

@@ -44,6 +44,11 @@ class StructuredMatrix:
         return self.c_upper is None
 
     @property
+    def finite(self) -> bool:
+        """True when every block is finite (no NaN or inf)."""
+        return all(np.all(np.isfinite(block)) for block in (self.a, self.c, self.b, self._upper))
+
+    @property
     def _upper(self) -> np.ndarray:
         return self.c if self.c_upper is None else self.c_upper
 
