@@ -378,9 +378,10 @@ def calibrate(
             bias it removes is within the noise and the result scatters more (pull
             widths 1.1-1.4 instead of 1.0-1.1; docs/calibration.md). With
             ``jacobian_sets`` both roots use the same averaged weights J_b, whose noise
-            then cancels in the extrapolation: on SK (K = 4) it moves absorption by
-            +0.43 +- 0.16 sigma, and the pull widths stay 1.0-1.2 except the wall's,
-            whose error is too large (0.64). Off by default.
+            then cancels in the extrapolation: on SK (K = 4, 40 experiments) it
+            moves absorption by +0.28 +- 0.12 sigma (pull mean -0.72 -> -0.43), and
+            the pull widths stay 1.0-1.2 except the wall's, whose error is too large
+            (0.72). Off by default.
         jacobian_sets: with the independent-ray stage, the number K of independent ray
             sets over which the score's weights J_b are averaged once, where the stage
             starts, and kept for all its steps (one Jacobian per run and step instead of
