@@ -89,7 +89,7 @@ def _refuse_non_finite(problem: CalibrationProblem, theta: dict, stage: str,
                        _dense_values(problem, problem.params_of(theta)).items())
     raise ConfigError(
         f"{stage}, iteration {iteration}: -log L or its derivatives are not finite at"
-        f" {values} (the fit ran off); use more rays (TransportConfig.n_rays) or runs"
+        f" {values} (the fit ran off); use more rays (TransportConfig.n_rays, --rays) or runs"
         " that constrain the free values better"
     )
 
