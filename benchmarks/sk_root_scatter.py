@@ -33,13 +33,7 @@ from photonflow.calibration import calibrate
 from photonflow.transport.optics import TransportConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "calibration"))
-from sk_joint import (  # noqa: E402
-    OPTICS,
-    campaign_sources,
-    campaign_start,
-    campaign_truth,
-    sampled_events,
-)
+from sk_joint import OPTICS, campaign_runs, campaign_start, campaign_truth  # noqa: E402
 
 #: The first data seed and ray key after the campaign's own.
 FIRST_DATA_SEED, FIRST_RAY_KEY = 101, 5000
@@ -57,8 +51,7 @@ def fit(detector, truth, data_seed: int, ray_key: int, config, jacobian_sets,
     """One fit of the campaign's sources with the pseudo-data of ``data_seed`` and the
     rays of ``key(ray_key)``: theta_1, the returned value, its error and ray-noise
     share per optical parameter."""
-    runs = [(source, sampled_events(detector, truth, source, 1000 * data_seed + k, config))
-            for k, source in enumerate(campaign_sources(detector, 1e6))]
+    runs = campaign_runs(detector, truth, data_seed, 1e6, config)
     result = calibrate(detector, runs, campaign_start(detector, truth),
                        [*OPTICS, "efficiency"], config=config, truth=truth,
                        key=jax.random.key(ray_key), jacobian_sets=jacobian_sets,

@@ -121,6 +121,15 @@ def surrogate_events(detector, truth, source, seed: int, config: TransportConfig
 PSEUDO_DATA = {"sampled": sampled_events, "expected": surrogate_events}
 
 
+def campaign_runs(detector, truth, seed: int, photons: float, config: TransportConfig,
+                  make_events=sampled_events) -> list:
+    """The campaign's runs (source, events) at ``truth``: one event of every
+    ``campaign_sources`` source (``photons`` per flash), source k with the pseudo-data
+    seed ``1000 * seed + k``, made by ``make_events`` (a ``PSEUDO_DATA`` value)."""
+    return [(source, make_events(detector, truth, source, 1000 * seed + k, config))
+            for k, source in enumerate(campaign_sources(detector, photons))]
+
+
 def campaign_start(detector, truth):
     """The fit's start: the preset's parameters (every efficiency 1) with the optics 25 %
     away from ``truth``'s, absorption and sensor reflectivity above, scattering and wall
@@ -142,11 +151,8 @@ def experiment(detector, seed: int, photons: float, rays: int, free: list[str],
     truth = campaign_truth(detector, seed)
     start = campaign_start(detector, truth)
     config = TransportConfig(n_bounces=2, n_rays=rays)
-    sources = campaign_sources(detector, photons)
     began = time.perf_counter()
-    make_events = PSEUDO_DATA[pseudo_data]
-    runs = [(source, make_events(detector, truth, source, 1000 * seed + k, config))
-            for k, source in enumerate(sources)]
+    runs = campaign_runs(detector, truth, seed, photons, config, PSEUDO_DATA[pseudo_data])
     simulated = time.perf_counter() - began
     print(f"seed {seed}: pseudo-data, {len(runs)} runs in {simulated:.0f} s"
           f" ({pseudo_data} mode)", flush=True)

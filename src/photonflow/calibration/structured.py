@@ -46,7 +46,8 @@ class StructuredMatrix:
     @property
     def finite(self) -> bool:
         """True when every block is finite (no NaN or inf)."""
-        return all(np.all(np.isfinite(block)) for block in (self.a, self.c, self.b, self._upper))
+        return all(np.all(np.isfinite(block)) for block in (self.a, self.c, self.b, self.c_upper)
+                   if block is not None)
 
     @property
     def _upper(self) -> np.ndarray:
