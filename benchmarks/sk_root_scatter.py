@@ -2,8 +2,8 @@
 at a time, against the two parts of the error the fit reports (~2-4 min per fit alone).
 
 ``python benchmarks/sk_root_scatter.py data|rays [fits] [seed] [--jacobian-sets K]
-[--ray-extrapolation] [--out F.json]``: the campaign experiment ``seed`` (default 1) of
-``examples/calibration/sk_joint.py``, fitted ``fits`` times (default 8):
+[--ray-extrapolation] [--skip S] [--out F.json]``: the campaign experiment ``seed``
+(default 1) of ``examples/calibration/sk_joint.py``, fitted ``fits`` times (default 8):
 
 - ``data``: the fit's ray key stays the campaign's (``key(seed)``); the pseudo-data are
   the campaign's, then those of data seeds 101, 102, ... (the same truth and
@@ -15,7 +15,9 @@ at a time, against the two parts of the error the fit reports (~2-4 min per fit 
 
 Prints, per fit, the one-set root theta_1 (the last ``"independent rays"`` step), the
 returned value and its error; at the end, per optical parameter, the scatter of both
-over the fits against the fit's part. ``--out`` keeps the rows, rewritten after each fit.
+over the fits against the fit's part. ``--skip S`` leaves out the first S draws (to extend
+an earlier run with the same seeds; the summary is then over the new fits only).
+``--out`` keeps the rows, rewritten after each fit.
 """
 
 from __future__ import annotations
@@ -87,15 +89,20 @@ def main() -> None:
     parser.add_argument("seed", type=int, nargs="?", default=1)
     parser.add_argument("--jacobian-sets", type=int, default=None)
     parser.add_argument("--ray-extrapolation", action="store_true")
+    parser.add_argument("--skip", type=int, default=0,
+                        help="leave out the first SKIP draws (already fitted)")
     parser.add_argument("--out", help="JSON file for the rows")
     args = parser.parse_args()
-    if args.fits < 2:
-        parser.error(f"fits = {args.fits}: need at least 2 for a scatter")
+    if args.skip < 0:
+        parser.error(f"skip = {args.skip}: must be >= 0")
+    if args.fits - args.skip < 2:
+        parser.error(f"fits = {args.fits}, skip = {args.skip}: need at least 2 fits for a"
+                     " scatter")
     detector = pf.load_detector("SK")
     truth = campaign_truth(detector, args.seed)
     config = TransportConfig(n_bounces=2, n_rays=1024)
     rows = []
-    for data_seed, ray_key in draws(args.vary, args.fits, args.seed):
+    for data_seed, ray_key in draws(args.vary, args.fits, args.seed)[args.skip:]:
         row = fit(detector, truth, data_seed, ray_key, config, args.jacobian_sets,
                   args.ray_extrapolation)
         rows.append(row)

@@ -1,0 +1,146 @@
+"""The SK fit's optics linearised at the truth: the response of the independent-ray root
+to sampled pseudo-data, seed by seed, against its sandwich error (~1-2 min a seed).
+
+``python benchmarks/sk_linear_response.py FIRST LAST [--data 0 700 ...] [--draws N]
+[--out F.json]``: for each campaign experiment ``seed`` of
+``examples/calibration/sk_joint.py`` from FIRST to LAST (its truth, its fit's ray key
+``key(seed)``), the independent-ray estimating equation at the true parameters with the
+weights J_b averaged over 4 ray sets (as ``calibrate(jacobian_sets=4)``): its Newton
+matrix D, the sandwich's data part D^-1 V D^-T and ray part D^-1 R D^-T, and the linear
+response -D^-1 s of each optical parameter (unconstrained coordinates) to the score s of
+pseudo-data at that truth:
+
+- ``--data`` offsets (default ``0 700``): the pseudo-data of data seed ``seed + offset``
+  (offset 0: the campaign's own). The campaign's one-set root theta_1 follows the
+  response to its own data (correlation 0.99 over 40 seeds, docs/calibration.md), so
+  this is the campaign without the fits. Two draws at one seed share the rays and the
+  truth: half the variance of their difference over the seeds is the data part alone.
+- ``--draws N``: instead, N draws per seed (data seeds ``800 + 50 seed + k``): the
+  response's scatter over them at fixed rays against the sandwich's data part (a check
+  of V).
+
+No Jensen correction: its shift is a constant per seed. Prints per seed the responses
+in units of the sandwich's total sigma, and a summary at the end; ``--out`` keeps the
+numbers, rewritten after each seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import photonflow as pf
+from photonflow.calibration.layout import free_layout
+from photonflow.calibration.objective import CalibrationProblem
+from photonflow.calibration.runs import prepare_runs
+from photonflow.transport.optics import TransportConfig
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "calibration"))
+from sk_joint import OPTICS, campaign_runs, campaign_truth  # noqa: E402
+
+#: Ray sets over which the score's weights are averaged (``calibrate(jacobian_sets=)``).
+WEIGHT_SETS = 4
+
+
+def problem_for(detector, truth, data_seed: int, ray_seed: int, config) -> CalibrationProblem:
+    """The campaign's calibration problem (optics and efficiencies free, charge
+    likelihood) on the pseudo-data of ``data_seed`` with the rays of ``key(ray_seed)``."""
+    runs = prepare_runs(campaign_runs(detector, truth, data_seed, 1e6, config), detector,
+                        "charge")
+    return CalibrationProblem(detector, runs, truth,
+                              free_layout([*OPTICS, "efficiency"], detector.n_sensors),
+                              "charge", config, jax.random.key(ray_seed))
+
+
+def linear_response(detector, seed: int, data_seeds: list[int], config) -> dict:
+    """The sandwich's data and ray parts (variances, unconstrained) and the response
+    -D^-1 s to the pseudo-data of each of ``data_seeds``, at the truth of ``seed``."""
+    truth = campaign_truth(detector, seed)
+    problem = problem_for(detector, truth, seed, seed, config)
+    theta = problem.initial_theta()
+    weights = problem.independent_jacobians(theta, WEIGHT_SETS)
+    parts = problem.independent_ray_curvature(theta, None, 1, weights)
+    covariance = problem.ray_noise_covariance(parts, problem.ray_noise_sets(theta))
+    variance = np.diag(covariance.covariance()[0])
+    share = covariance.noise_share()
+    p = parts.newton.a.shape[0]
+    n, f = parts.newton.b.shape[:2]
+    transposed = parts.newton.transpose()
+    rows = [transposed.solve(np.eye(p)[k], np.zeros((n, f))) for k in range(p)]
+    responses = {}
+    for data_seed in data_seeds:
+        draw = problem if data_seed == seed else problem_for(detector, truth, data_seed,
+                                                              seed, config)
+        _, score_dense, score_sensor = draw.independent_ray_score(theta, weights)
+        responses[str(data_seed)] = [-float(row_dense @ score_dense
+                                            + np.sum(row_sensor * score_sensor))
+                                     for row_dense, row_sensor in rows]
+    return {"seed": seed, "data_part": (variance * (1 - share)).tolist(),
+            "ray_part": (variance * share).tolist(), "responses": responses}
+
+
+def in_sigma(row: dict) -> dict[str, np.ndarray]:
+    """Data seed -> the responses in units of the sandwich's total sigma."""
+    sigma = np.sqrt(np.add(row["data_part"], row["ray_part"]))
+    return {k: np.asarray(v) / sigma for k, v in row["responses"].items()}
+
+
+def summary(rows: list[dict], draws: bool) -> None:
+    """Per optical parameter, the sandwich's data sigma against the measured one: over
+    the draws of each seed (``draws``), or from pairs of draws at the same seed."""
+    share = np.mean([np.divide(r["data_part"], np.add(r["data_part"], r["ray_part"]))
+                     for r in rows], axis=0)
+    print(f"\n{len(rows)} seeds: data part of the sandwich (sigma, in units of the"
+          " total) against the measured one")
+    for j, name in enumerate(OPTICS):
+        if draws:
+            measured = [np.std([v[j] for v in in_sigma(r).values()], ddof=1) for r in rows]
+            text = "scatter over the draws " + " ".join(f"{m:.2f}" for m in measured)
+        else:
+            values = [list(in_sigma(r).values()) for r in rows]
+            pairs = [v[0][j] - other[j] for v in values for other in v[1:]]
+            spread = np.std(pairs, ddof=1)
+            text = (f"(first draw - each other) / sqrt 2: {spread / np.sqrt(2):.2f}"
+                    f" (mean {np.mean(pairs):+.2f} +- {spread / np.sqrt(len(pairs)):.2f})")
+        print(f"  {name:20s} sandwich {np.sqrt(share[j]):.2f}   {text}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("first", type=int)
+    parser.add_argument("last", type=int)
+    parser.add_argument("--data", type=int, nargs="+", default=[0, 700],
+                        help="data-seed offsets (0: the campaign's own pseudo-data)")
+    parser.add_argument("--draws", type=int, default=None,
+                        help="instead: this many draws per seed (data seeds 800 + 50 seed + k)")
+    parser.add_argument("--out", help="JSON file for the numbers")
+    args = parser.parse_args()
+    if args.last < args.first or args.first < 1:
+        parser.error(f"seeds {args.first}..{args.last}: need 1 <= FIRST <= LAST")
+    if args.draws is not None and args.draws < 2:
+        parser.error(f"draws = {args.draws}: need at least 2 for a scatter")
+    if args.draws is None and len(set(args.data)) < 2:
+        parser.error(f"data = {args.data}: need at least 2 different offsets for pairs")
+    detector = pf.load_detector("SK")
+    config = TransportConfig(n_bounces=2, n_rays=1024)
+    rows = []
+    for seed in range(args.first, args.last + 1):
+        data_seeds = ([800 + 50 * seed + k for k in range(args.draws)] if args.draws
+                      else [seed + offset for offset in args.data])
+        rows.append(linear_response(detector, seed, data_seeds, config))
+        print(f"seed {seed}: " + "  ".join(
+            f"data {k}: " + " ".join(f"{x:+.2f}" for x in v)
+            for k, v in in_sigma(rows[-1]).items()), flush=True)
+        if args.out:
+            Path(args.out).write_text(json.dumps({"settings": vars(args), "rows": rows},
+                                                 indent=1))
+    summary(rows, args.draws is not None)
+
+
+if __name__ == "__main__":
+    main()
