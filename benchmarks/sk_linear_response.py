@@ -19,9 +19,15 @@ pseudo-data at that truth:
   response's scatter over them at fixed rays against the sandwich's data part (a check
   of V).
 
-No Jensen correction: its shift is a constant per seed. Prints per seed the responses
-in units of the sandwich's total sigma, and a summary at the end; ``--out`` keeps the
-numbers, rewritten after each seed.
+``responses`` have no Jensen correction (its shift is a constant per seed). With
+``--estimator`` also, per data seed, the linearised estimator of
+``calibrate(jacobian_sets=4, ray_extrapolation=True)``: ``theta1``, the response with
+the Jensen correction (``CalibrationProblem.ray_noise_sets`` at the truth), and
+``extrapolated``, 2 r_2 - r_1 with r_2 the response with the expected charges averaged
+over 2 ray sets (``fit.EXTRAPOLATION_SETS``); their pull means over the seeds are the
+estimator's bias without the fits (~20 s more a seed).
+Prints per seed the responses in units of the sandwich's total sigma, and a summary at
+the end; ``--out`` keeps the numbers, rewritten after each seed.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ import jax
 import numpy as np
 
 import photonflow as pf
+from photonflow.calibration.fit import EXTRAPOLATION_SETS
 from photonflow.calibration.layout import free_layout
 from photonflow.calibration.objective import CalibrationProblem
 from photonflow.calibration.runs import prepare_runs
@@ -57,42 +64,60 @@ def problem_for(detector, truth, data_seed: int, ray_seed: int, config) -> Calib
                               "charge", config, jax.random.key(ray_seed))
 
 
-def linear_response(detector, seed: int, data_seeds: list[int], config) -> dict:
+def linear_response(detector, seed: int, data_seeds: list[int], config,
+                    estimator: bool = False) -> dict:
     """The sandwich's data and ray parts (variances, unconstrained) and the response
-    -D^-1 s to the pseudo-data of each of ``data_seeds``, at the truth of ``seed``."""
+    -D^-1 s to the pseudo-data of each of ``data_seeds``, at the truth of ``seed``; with
+    ``estimator`` also the linearised ``theta1`` and ``extrapolated`` roots."""
     truth = campaign_truth(detector, seed)
     problem = problem_for(detector, truth, seed, seed, config)
     theta = problem.initial_theta()
     weights = problem.independent_jacobians(theta, WEIGHT_SETS)
     parts = problem.independent_ray_curvature(theta, None, 1, weights)
-    covariance = problem.ray_noise_covariance(parts, problem.ray_noise_sets(theta))
+    noise = problem.ray_noise_sets(theta)
+    covariance = problem.ray_noise_covariance(parts, noise)
     variance = np.diag(covariance.covariance()[0])
     share = covariance.noise_share()
     p = parts.newton.a.shape[0]
     n, f = parts.newton.b.shape[:2]
     transposed = parts.newton.transpose()
     rows = [transposed.solve(np.eye(p)[k], np.zeros((n, f))) for k in range(p)]
-    responses = {}
+    def response(draw, ray_noise=None, charge_sets=1) -> np.ndarray:
+        _, score_dense, score_sensor = draw.independent_ray_score(theta, weights, ray_noise,
+                                                                  charge_sets)
+        return np.array([-float(row_dense @ score_dense + np.sum(row_sensor * score_sensor))
+                         for row_dense, row_sensor in rows])
+
+    out = {"seed": seed, "data_part": (variance * (1 - share)).tolist(),
+           "ray_part": (variance * share).tolist(), "responses": {}}
+    if estimator:
+        out.update(theta1={}, extrapolated={})
     for data_seed in data_seeds:
         draw = problem if data_seed == seed else problem_for(detector, truth, data_seed,
                                                               seed, config)
-        _, score_dense, score_sensor = draw.independent_ray_score(theta, weights)
-        responses[str(data_seed)] = [-float(row_dense @ score_dense
-                                            + np.sum(row_sensor * score_sensor))
-                                     for row_dense, row_sensor in rows]
-    return {"seed": seed, "data_part": (variance * (1 - share)).tolist(),
-            "ray_part": (variance * share).tolist(), "responses": responses}
+        out["responses"][str(data_seed)] = response(draw).tolist()
+        if estimator:
+            one = response(draw, noise)
+            many = response(draw, noise, EXTRAPOLATION_SETS)
+            factor = EXTRAPOLATION_SETS / (EXTRAPOLATION_SETS - 1)
+            out["theta1"][str(data_seed)] = one.tolist()
+            out["extrapolated"][str(data_seed)] = (one + factor * (many - one)).tolist()
+    return out
 
 
-def in_sigma(row: dict) -> dict[str, np.ndarray]:
-    """Data seed -> the responses in units of the sandwich's total sigma."""
+def in_sigma(row: dict, kind: str = "responses") -> dict[str, np.ndarray]:
+    """Data seed -> the responses (or ``kind``: "theta1", "extrapolated") in units of the
+    sandwich's total sigma."""
     sigma = np.sqrt(np.add(row["data_part"], row["ray_part"]))
-    return {k: np.asarray(v) / sigma for k, v in row["responses"].items()}
+    return {k: np.asarray(v) / sigma for k, v in row[kind].items()}
 
 
 def summary(rows: list[dict], draws: bool) -> None:
     """Per optical parameter, the sandwich's data sigma against the measured one: over
     the draws of each seed (``draws``), or from pairs of draws at the same seed."""
+    if len(rows) < 2 and not draws:
+        print("\none seed: no scatter over the seeds to summarise")
+        return
     share = np.mean([np.divide(r["data_part"], np.add(r["data_part"], r["ray_part"]))
                      for r in rows], axis=0)
     print(f"\n{len(rows)} seeds: data part of the sandwich (sigma, in units of the"
@@ -108,6 +133,17 @@ def summary(rows: list[dict], draws: bool) -> None:
             text = (f"(first draw - each other) / sqrt 2: {spread / np.sqrt(2):.2f}"
                     f" (mean {np.mean(pairs):+.2f} +- {spread / np.sqrt(len(pairs)):.2f})")
         print(f"  {name:20s} sandwich {np.sqrt(share[j]):.2f}   {text}")
+    if "theta1" in rows[0]:
+        print("linearised estimator, pull mean +- its error (width), first data seed of each"
+              " seed")
+        for j, name in enumerate(OPTICS):
+            text = []
+            for kind in ("theta1", "extrapolated"):
+                pulls = np.array([next(iter(in_sigma(r, kind).values()))[j] for r in rows])
+                text.append(f"{kind} {pulls.mean():+.2f} +- "
+                            f"{pulls.std(ddof=1) / np.sqrt(len(pulls)):.2f}"
+                            f" ({pulls.std(ddof=1):.2f})")
+            print(f"  {name:20s} " + "   ".join(text))
 
 
 def main() -> None:
@@ -118,6 +154,8 @@ def main() -> None:
                         help="data-seed offsets (0: the campaign's own pseudo-data)")
     parser.add_argument("--draws", type=int, default=None,
                         help="instead: this many draws per seed (data seeds 800 + 50 seed + k)")
+    parser.add_argument("--estimator", action="store_true",
+                        help="also the linearised roots theta_1 and extrapolated")
     parser.add_argument("--out", help="JSON file for the numbers")
     args = parser.parse_args()
     if args.last < args.first or args.first < 1:
@@ -132,7 +170,7 @@ def main() -> None:
     for seed in range(args.first, args.last + 1):
         data_seeds = ([800 + 50 * seed + k for k in range(args.draws)] if args.draws
                       else [seed + offset for offset in args.data])
-        rows.append(linear_response(detector, seed, data_seeds, config))
+        rows.append(linear_response(detector, seed, data_seeds, config, args.estimator))
         print(f"seed {seed}: " + "  ".join(
             f"data {k}: " + " ".join(f"{x:+.2f}" for x in v)
             for k, v in in_sigma(rows[-1]).items()), flush=True)
