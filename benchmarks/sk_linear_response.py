@@ -78,10 +78,8 @@ def linear_response(detector, seed: int, data_seeds: list[int], config,
     covariance = problem.ray_noise_covariance(parts, noise)
     variance = np.diag(covariance.covariance()[0])
     share = covariance.noise_share()
-    p = parts.newton.a.shape[0]
-    n, f = parts.newton.b.shape[:2]
-    transposed = parts.newton.transpose()
-    rows = [transposed.solve(np.eye(p)[k], np.zeros((n, f))) for k in range(p)]
+    rows = covariance.dense_rows
+
     def response(draw, ray_noise=None, charge_sets=1) -> np.ndarray:
         _, score_dense, score_sensor = draw.independent_ray_score(theta, weights, ray_noise,
                                                                   charge_sets)

@@ -170,14 +170,22 @@ class SandwichCovariance:
     noise_sensor: np.ndarray | None = None
 
     @functools.cached_property
-    def _dense_parts(self) -> tuple[np.ndarray, np.ndarray]:
-        """(X V X^T, X R X^T), both (P, P), for X the first P rows of D^-1 (each as
-        (D^-T e_k)^T, a structured solve with D^T); computed once per instance, since
-        the fit asks for the covariance, the noise share and the errors at the root."""
+    def dense_rows(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The first P rows of D^-1 (the dense entries' response to the score), each as
+        (dense part (P,), per-sensor part (N, F)) = D^-T e_k, a structured solve with D^T;
+        -(row . score) is the first-order change of entry k. Computed once per
+        instance."""
         p = self.newton.a.shape[0]
         n, f = self.newton.b.shape[:2]
         transposed = self.newton.transpose()
-        rows = [transposed.solve(np.eye(p)[k], np.zeros((n, f))) for k in range(p)]
+        return [transposed.solve(np.eye(p)[k], np.zeros((n, f))) for k in range(p)]
+
+    @functools.cached_property
+    def _dense_parts(self) -> tuple[np.ndarray, np.ndarray]:
+        """(X V X^T, X R X^T), both (P, P), for X the rows of ``dense_rows``; computed
+        once per instance, since the fit asks for the covariance, the noise share and
+        the errors at the root."""
+        rows = self.dense_rows
         images = [self.information.multiply(*row) for row in rows]
         data = np.array([
             [float(xd @ vd + np.sum(xs * vs)) for vd, vs in images] for xd, xs in rows
