@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 
 import photonflow as pf
 from photonflow.calibration import CalibrationResult
+from photonflow.calibration.fit import DEFAULT_JACOBIAN_SETS
 from photonflow.cli import app
 from photonflow.io import make_event, write_events
 
@@ -80,23 +81,28 @@ def test_calibrate_writes_a_result_with_the_free_parameter(fitted, run_file):
     assert json.loads(out.read_text())["format"] == "photonflow-calibration"
 
 
-def test_ray_extrapolation_flag_reaches_the_fit(run_file, tmp_path):
-    """``--ray-extrapolation`` is recorded in the result's settings (the default fit
-    records False); without indirect light there is no independent-ray stage, so the
-    history has no stage entries either way."""
+def test_estimator_flags_reach_the_fit(run_file, tmp_path):
+    """``--no-ray-extrapolation`` and ``--jacobian-sets 0`` (a fresh weight set every
+    step) are recorded in the result's settings; without indirect light there is no
+    independent-ray stage, so the history has no stage entries either way."""
     out = tmp_path / "calib.json"
     result = invoke("calibrate", run_file, "--detector", "TOY_CYLINDER",
                     "--free", "quantum_efficiency", "--rays", "512", "--max-iterations", "3",
-                    "--ray-extrapolation", "--out", out)
+                    "--no-ray-extrapolation", "--jacobian-sets", "0", "--out", out)
     assert result.exit_code == 0, result.output
     loaded = CalibrationResult.load(out)
-    assert loaded.settings["ray_extrapolation"] is True
+    assert loaded.settings["ray_extrapolation"] is False
+    assert loaded.settings["jacobian_sets"] is None
     assert not [entry for entry in loaded.history if "stage" in entry]
 
 
-def test_default_fit_records_no_ray_extrapolation(fitted):
+def test_default_fit_records_the_default_estimator(fitted):
+    """Without the flags the fit uses ``calibrate``'s defaults: the extrapolated root with
+    the score's weights averaged over ``DEFAULT_JACOBIAN_SETS`` ray sets."""
     out, _ = fitted
-    assert CalibrationResult.load(out).settings["ray_extrapolation"] is False
+    settings = CalibrationResult.load(out).settings
+    assert settings["ray_extrapolation"] is True
+    assert settings["jacobian_sets"] == DEFAULT_JACOBIAN_SETS
 
 
 def test_report_is_a_png(fitted, tmp_path):
@@ -202,7 +208,7 @@ def test_file_without_run_settings_is_refused(tmp_path):
         (["--method", "newton"], "method"),
         (["--likelihood", "time"], "--likelihood"),
         (["--rays", "0"], "--rays"),
-        (["--jacobian-sets", "0"], "--jacobian-sets = 0"),
+        (["--jacobian-sets", "-1"], "--jacobian-sets = -1"),
     ],
 )
 def test_bad_options_are_one_line(run_file, tmp_path, args, fragment):

@@ -12,7 +12,7 @@ import pytest
 
 import photonflow as pf
 from photonflow.calibration import calibrate
-from photonflow.calibration.fit import EXTRAPOLATION_SETS
+from photonflow.calibration.fit import DEFAULT_JACOBIAN_SETS, EXTRAPOLATION_SETS
 from photonflow.calibration.layout import free_layout
 from photonflow.calibration.objective import (
     CalibrationProblem,
@@ -75,12 +75,13 @@ def test_fit_extrapolates_the_roots_with_one_and_more_ray_sets(toy):
     """With ``ray_extrapolation`` the history has the one-set steps, then the steps with
     ``EXTRAPOLATION_SETS`` sets, then the extrapolated point, which is
     theta_1 + K/(K - 1) (theta_K - theta_1) in the fit's coordinates (log of a length),
-    and is the result. Without it (the default) the result is theta_1."""
+    and is the result (the default). Without it the result is theta_1."""
     detector, truth, runs, start = toy
     result = calibrate(detector, runs, start, list(FREE), config=CONFIG, truth=truth,
-                       key=jax.random.key(5), ray_extrapolation=True)
+                       key=jax.random.key(5))
     assert result.converged, result.message
     assert result.settings["ray_extrapolation"] is True
+    assert result.settings["jacobian_sets"] == DEFAULT_JACOBIAN_SETS
     stages = [entry.get("stage") for entry in result.history]
     many = f"independent rays, {EXTRAPOLATION_SETS} sets"
     assert stages[-1] == "extrapolated"
@@ -97,7 +98,7 @@ def test_fit_extrapolates_the_roots_with_one_and_more_ray_sets(toy):
         assert np.isfinite(result.history[-1]["ray_count_extrapolation"][name])
 
     plain = calibrate(detector, runs, start, list(FREE), config=CONFIG, truth=truth,
-                      key=jax.random.key(5))
+                      key=jax.random.key(5), ray_extrapolation=False)
     assert plain.converged and plain.settings["ray_extrapolation"] is False
     assert {entry.get("stage") for entry in plain.history} == {None, "independent rays"}
     assert "ray_noise_share" in plain.history[-1]

@@ -498,13 +498,14 @@ def calibrate(
     report: Annotated[Path | None, typer.Option(
         help="Draw this calibration result (.json) to --out instead of fitting.")] = None,
     ray_extrapolation: Annotated[bool, typer.Option(
-        "--ray-extrapolation",
-        help="Extrapolate the optics to infinitely many rays (few rays; see"
-             " docs/calibration.md).")] = False,
+        "--ray-extrapolation/--no-ray-extrapolation",
+        help="Extrapolate the optics to infinitely many rays, removing the expected"
+             " mode's O(1/rays) ray-noise bias (docs/calibration.md).")] = True,
     jacobian_sets: Annotated[int | None, typer.Option(
         "--jacobian-sets",
         help="Average the independent-ray score's weights over this many ray sets, once"
-             " (default: a fresh set every step; docs/calibration.md).")] = None,
+             " (default: calibrate()'s, 4); 0: a fresh set every step"
+             " (docs/calibration.md).")] = None,
 ) -> None:
     """Fit detector parameters (absorption and scattering lengths, reflectivities,
     per-sensor efficiency and time offset, ...) to calibration runs and write the result
@@ -528,7 +529,7 @@ def calibrate(
 
 
 def _calibration_fit(files, out, detector, free, init, method, likelihood, rays, bounces,
-                     max_iterations, ray_extrapolation: bool = False,
+                     max_iterations, ray_extrapolation: bool = True,
                      jacobian_sets: int | None = None) -> None:
     """``calibrate FILE... --out``: read the runs, fit with a live display, print the
     table, save the result."""
@@ -550,8 +551,9 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
         raise ConfigError(f"--bounces = {bounces}: must be >= 0")
     if max_iterations < 1:
         raise ConfigError(f"--max-iterations = {max_iterations}: must be >= 1")
-    if jacobian_sets is not None and jacobian_sets < 1:
-        raise ConfigError(f"--jacobian-sets = {jacobian_sets}: must be >= 1")
+    if jacobian_sets is not None and jacobian_sets < 0:
+        raise ConfigError(f"--jacobian-sets = {jacobian_sets}: must be >= 0 (0: a fresh"
+                          " set every step)")
     if likelihood not in LIKELIHOODS:
         raise ConfigError(f"--likelihood = {likelihood!r}: must be one of {', '.join(LIKELIHOODS)}")
     make_method(method)
@@ -576,7 +578,8 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
                 setup.detector, runs.runs, start, list(layout.names), method=method,
                 likelihood=likelihood, config=config, truth=runs.truth,
                 max_iterations=max_iterations, callback=_FitProgress(live),
-                ray_extrapolation=ray_extrapolation, jacobian_sets=jacobian_sets,
+                ray_extrapolation=ray_extrapolation,
+                **({} if jacobian_sets is None else {"jacobian_sets": jacobian_sets or None}),
             )
     console().print(calibration_rich_table(result))
     try:
