@@ -84,11 +84,11 @@ def main() -> None:
                   f"   {variance[band].sum() / (pe[band].sum() * second_moment):.3f}")
 
     z = detector.sensor_positions[:, 2]
-    groups = {"all sensors": np.ones(z.size, bool), "top cap": z > z.max() - 0.5,
-              "bottom cap": z < z.min() + 0.5}
+    groups = {"all sensors": np.ones(z.size, bool), "the top cap": z > z.max() - 0.5,
+              "the bottom cap": z < z.min() + 0.5}
     for name, group in groups.items():
         total = charges[:, group].sum(axis=1)
-        print(f"  sum over the {name}: {total.var(ddof=1) / (pe[group].sum() * second_moment):.3f}")
+        print(f"  sum over {name}: {total.var(ddof=1) / (pe[group].sum() * second_moment):.3f}")
     rng = np.random.default_rng(0)
     for trial in range(3):
         weights = rng.normal(size=z.size)
