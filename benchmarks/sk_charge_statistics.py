@@ -15,7 +15,7 @@ compares, over the draws:
 - the mean correlation of each sensor with its 1st to 6th nearest neighbour, and with a
   random partner.
 
-Takes about 2 minutes for 200 draws on the 2-core machine.
+Takes about a minute for 200 draws on the 2-core machine (57 s alone, 2026-11-25).
 """
 
 from __future__ import annotations

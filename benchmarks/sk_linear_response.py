@@ -18,6 +18,10 @@ pseudo-data at that truth:
 - ``--draws N``: instead, N draws per seed (data seeds ``800 + 50 seed + k``): the
   response's scatter over them at fixed rays against the sandwich's data part (a check
   of V).
+- ``--joint N``: instead, at the truth of each seed, N pairs of new pseudo-data and new
+  rays (data seed ``JOINT_DATA + j``, ray key ``key(JOINT_RAYS + j)``), each with its
+  own weights, ray-noise sets and sandwich: the response's scatter over the pairs
+  against the mean sandwich, data and ray parts together (~50 s a pair alone).
 
 ``responses`` have no Jensen correction (its shift is a constant per seed). With
 ``--estimator`` also, per data seed, the linearised estimator of
@@ -52,6 +56,9 @@ from sk_joint import OPTICS, campaign_runs, campaign_truth  # noqa: E402
 
 #: Ray sets over which the score's weights are averaged (``calibrate(jacobian_sets=)``).
 WEIGHT_SETS = 4
+#: ``--joint``: pair j has the pseudo-data of data seed JOINT_DATA + j and the rays of
+#: key(JOINT_RAYS + j), apart from every campaign seed's data and rays.
+JOINT_DATA, JOINT_RAYS = 3000, 7000
 
 
 def problem_for(detector, truth, data_seed: int, ray_seed: int, config) -> CalibrationProblem:
@@ -65,12 +72,15 @@ def problem_for(detector, truth, data_seed: int, ray_seed: int, config) -> Calib
 
 
 def linear_response(detector, seed: int, data_seeds: list[int], config,
-                    estimator: bool = False) -> dict:
+                    estimator: bool = False, ray_seed: int | None = None) -> dict:
     """The sandwich's data and ray parts (variances, unconstrained) and the response
-    -D^-1 s to the pseudo-data of each of ``data_seeds``, at the truth of ``seed``; with
-    ``estimator`` also the linearised ``theta1`` and ``extrapolated`` roots."""
+    -D^-1 s to the pseudo-data of each of ``data_seeds``, at the truth of ``seed`` with
+    the rays of ``key(ray_seed)`` (default ``seed``, the campaign fit's); with
+    ``estimator`` also the linearised ``theta1`` and ``extrapolated`` roots. The
+    sandwich does not depend on the data."""
     truth = campaign_truth(detector, seed)
-    problem = problem_for(detector, truth, seed, seed, config)
+    ray_seed = seed if ray_seed is None else ray_seed
+    problem = problem_for(detector, truth, data_seeds[0], ray_seed, config)
     theta = problem.initial_theta()
     weights = problem.independent_jacobians(theta, WEIGHT_SETS)
     parts = problem.independent_ray_curvature(theta, None, 1, weights)
@@ -86,13 +96,13 @@ def linear_response(detector, seed: int, data_seeds: list[int], config,
         return np.array([-float(row_dense @ score_dense + np.sum(row_sensor * score_sensor))
                          for row_dense, row_sensor in rows])
 
-    out = {"seed": seed, "data_part": (variance * (1 - share)).tolist(),
+    out = {"seed": seed, "ray_seed": ray_seed, "data_part": (variance * (1 - share)).tolist(),
            "ray_part": (variance * share).tolist(), "responses": {}}
     if estimator:
         out.update(theta1={}, extrapolated={})
     for data_seed in data_seeds:
-        draw = problem if data_seed == seed else problem_for(detector, truth, data_seed,
-                                                              seed, config)
+        draw = problem if data_seed == data_seeds[0] else problem_for(
+            detector, truth, data_seed, ray_seed, config)
         out["responses"][str(data_seed)] = response(draw).tolist()
         if estimator:
             one = response(draw, noise)
@@ -108,6 +118,24 @@ def in_sigma(row: dict, kind: str = "responses") -> dict[str, np.ndarray]:
     sandwich's total sigma."""
     sigma = np.sqrt(np.add(row["data_part"], row["ray_part"]))
     return {k: np.asarray(v) / sigma for k, v in row[kind].items()}
+
+
+def joint_summary(rows: list[dict]) -> None:
+    """Per optical parameter, the responses' scatter over the (data, rays) pairs of one
+    seed against the square root of the mean sandwich variance, and the width of the
+    responses in units of each pair's own sigma."""
+    if len(rows) < 3:
+        print("\nfewer than 3 pairs: no scatter to summarise")
+        return
+    responses = np.array([next(iter(r["responses"].values())) for r in rows])
+    variances = np.array([np.add(r["data_part"], r["ray_part"]) for r in rows])
+    scatter = responses.std(axis=0, ddof=1) / np.sqrt(variances.mean(axis=0))
+    pulls = responses / np.sqrt(variances)
+    print(f"\n{len(rows)} pairs of new data and new rays at the truth of seed"
+          f" {rows[0]['seed']} (error of a width: {1 / np.sqrt(2 * (len(rows) - 1)):.2f})")
+    for j, name in enumerate(OPTICS):
+        print(f"  {name:20s} scatter / sandwich sigma {scatter[j]:.2f}   pulls: mean"
+              f" {pulls[:, j].mean():+.2f}, width {pulls[:, j].std(ddof=1):.2f}")
 
 
 def summary(rows: list[dict], draws: bool) -> None:
@@ -152,6 +180,8 @@ def main() -> None:
                         help="data-seed offsets (0: the campaign's own pseudo-data)")
     parser.add_argument("--draws", type=int, default=None,
                         help="instead: this many draws per seed (data seeds 800 + 50 seed + k)")
+    parser.add_argument("--joint", type=int, default=None,
+                        help="instead: this many pairs of new data and new rays per seed")
     parser.add_argument("--estimator", action="store_true",
                         help="also the linearised roots theta_1 and extrapolated")
     parser.add_argument("--out", help="JSON file for the numbers")
@@ -160,11 +190,27 @@ def main() -> None:
         parser.error(f"seeds {args.first}..{args.last}: need 1 <= FIRST <= LAST")
     if args.draws is not None and args.draws < 2:
         parser.error(f"draws = {args.draws}: need at least 2 for a scatter")
-    if args.draws is None and len(set(args.data)) < 2:
+    if args.joint is not None and (args.joint < 1 or args.draws is not None):
+        parser.error(f"joint = {args.joint}: need >= 1 pairs, and not with --draws")
+    if args.draws is None and args.joint is None and len(set(args.data)) < 2:
         parser.error(f"data = {args.data}: need at least 2 different offsets for pairs")
     detector = pf.load_detector("SK")
     config = TransportConfig(n_bounces=2, n_rays=1024)
     rows = []
+    if args.joint is not None:
+        for seed in range(args.first, args.last + 1):
+            pairs = []
+            for j in range(args.joint):
+                pairs.append(linear_response(detector, seed, [JOINT_DATA + j], config,
+                                             args.estimator, ray_seed=JOINT_RAYS + j))
+                print(f"seed {seed}, pair {j}: " + " ".join(
+                    f"{x:+.2f}" for x in next(iter(in_sigma(pairs[-1]).values()))), flush=True)
+                if args.out:
+                    Path(args.out).write_text(json.dumps(
+                        {"settings": vars(args), "rows": rows + pairs}, indent=1))
+            rows += pairs
+            joint_summary(pairs)
+        return
     for seed in range(args.first, args.last + 1):
         data_seeds = ([800 + 50 * seed + k for k in range(args.draws)] if args.draws
                       else [seed + offset for offset in args.data])
