@@ -563,6 +563,8 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
     setup = load_setup(detector)
     layout = free_layout(free, setup.detector.n_sensors)
     start = setup.params if init is None else load_params(init)
+    # --jacobian-sets: unset keeps calibrate()'s default, 0 means a fresh set every step
+    weight_sets = {} if jacobian_sets is None else {"jacobian_sets": jacobian_sets or None}
     with open_runs(files, setup.detector) as runs:
         if bounces is None:
             bounces = runs.bounces if runs.bounces is not None else TransportConfig.n_bounces
@@ -578,8 +580,7 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
                 setup.detector, runs.runs, start, list(layout.names), method=method,
                 likelihood=likelihood, config=config, truth=runs.truth,
                 max_iterations=max_iterations, callback=_FitProgress(live),
-                ray_extrapolation=ray_extrapolation,
-                **({} if jacobian_sets is None else {"jacobian_sets": jacobian_sets or None}),
+                ray_extrapolation=ray_extrapolation, **weight_sets,
             )
     console().print(calibration_rich_table(result))
     try:
