@@ -45,7 +45,7 @@ import jax
 import numpy as np
 
 import photonflow as pf
-from photonflow.calibration.fit import EXTRAPOLATION_SETS
+from photonflow.calibration.fit import EXTRAPOLATION_SETS, ray_count_shift
 from photonflow.calibration.layout import free_layout
 from photonflow.calibration.objective import CalibrationProblem
 from photonflow.calibration.runs import prepare_runs
@@ -107,9 +107,8 @@ def linear_response(detector, seed: int, data_seeds: list[int], config,
         if estimator:
             one = response(draw, noise)
             many = response(draw, noise, EXTRAPOLATION_SETS)
-            factor = EXTRAPOLATION_SETS / (EXTRAPOLATION_SETS - 1)
             out["theta1"][str(data_seed)] = one.tolist()
-            out["extrapolated"][str(data_seed)] = (one + factor * (many - one)).tolist()
+            out["extrapolated"][str(data_seed)] = (one + ray_count_shift(one, many)).tolist()
     return out
 
 
@@ -172,6 +171,24 @@ def summary(rows: list[dict], draws: bool) -> None:
             print(f"  {name:20s} " + "   ".join(text))
 
 
+def joint_redraws(detector, config, args) -> None:
+    """``--joint``: per seed, ``args.joint`` pairs of new data and new rays, printed as
+    they come, kept in ``args.out`` and summarised by ``joint_summary``."""
+    rows = []
+    for seed in range(args.first, args.last + 1):
+        pairs = []
+        for j in range(args.joint):
+            pairs.append(linear_response(detector, seed, [JOINT_DATA + j], config,
+                                         args.estimator, ray_seed=JOINT_RAYS + j))
+            print(f"seed {seed}, pair {j}: " + " ".join(
+                f"{x:+.2f}" for x in next(iter(in_sigma(pairs[-1]).values()))), flush=True)
+            if args.out:
+                Path(args.out).write_text(json.dumps(
+                    {"settings": vars(args), "rows": rows + pairs}, indent=1))
+        rows += pairs
+        joint_summary(pairs)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("first", type=int)
@@ -196,21 +213,10 @@ def main() -> None:
         parser.error(f"data = {args.data}: need at least 2 different offsets for pairs")
     detector = pf.load_detector("SK")
     config = TransportConfig(n_bounces=2, n_rays=1024)
-    rows = []
     if args.joint is not None:
-        for seed in range(args.first, args.last + 1):
-            pairs = []
-            for j in range(args.joint):
-                pairs.append(linear_response(detector, seed, [JOINT_DATA + j], config,
-                                             args.estimator, ray_seed=JOINT_RAYS + j))
-                print(f"seed {seed}, pair {j}: " + " ".join(
-                    f"{x:+.2f}" for x in next(iter(in_sigma(pairs[-1]).values()))), flush=True)
-                if args.out:
-                    Path(args.out).write_text(json.dumps(
-                        {"settings": vars(args), "rows": rows + pairs}, indent=1))
-            rows += pairs
-            joint_summary(pairs)
+        joint_redraws(detector, config, args)
         return
+    rows = []
     for seed in range(args.first, args.last + 1):
         data_seeds = ([800 + 50 * seed + k for k in range(args.draws)] if args.draws
                       else [seed + offset for offset in args.data])

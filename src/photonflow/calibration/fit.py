@@ -150,6 +150,14 @@ DEFAULT_JACOBIAN_SETS = 4
 EXTRAPOLATION_SETS = 2
 
 
+def ray_count_shift(one_set, many_sets, sets: int = EXTRAPOLATION_SETS):
+    """The shift from the root with one ray set, ``one_set``, to the root with infinitely
+    many rays, given the root with ``sets`` sets, ``many_sets`` (arrays in the same
+    coordinates): the ray-noise bias falls as 1/(rays), so theta_inf = theta_1 +
+    K/(K - 1) (theta_K - theta_1)."""
+    return sets / (sets - 1) * (many_sets - one_set)
+
+
 def _root_steps(
     problem: CalibrationProblem, theta: dict, history: list, started: float,
     step_tolerance: float, callback, *, charge_sets: int, ray_noise, stage: str,
@@ -287,9 +295,9 @@ def _independent_ray_steps(
     (one_dense, one_sensor), (many_dense, many_sensor) = (
         [np.asarray(x, np.float64) for x in layout.split(t)] for t in (theta_one, theta_many)
     )
-    factor = sets / (sets - 1)
-    shift_dense = factor * (many_dense - one_dense)
-    theta = take_step(problem, theta_one, shift_dense, factor * (many_sensor - one_sensor))
+    shift_dense = ray_count_shift(one_dense, many_dense, sets)
+    theta = take_step(problem, theta_one, shift_dense,
+                      ray_count_shift(one_sensor, many_sensor, sets))
     loss = problem.value(theta)
     _record(problem, theta, history, started, callback, loss, "extrapolated")
     _record_ray_noise(problem, history[-1], parts, covariance)
