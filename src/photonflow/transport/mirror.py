@@ -79,6 +79,9 @@ ON_DISC = 0.05
 ROOT_TOLERANCE = 1e-3
 #: Newton steps moving a disc centre's reflection points to the nodes of its disc.
 FOLLOW_STEPS = 3
+#: Targets nearer than this (m) to a planar face get no mirror path off it (a disc on
+#: the face itself; float32 rounding puts its nodes either side of the plane).
+PLANE_CLEARANCE = 1e-4
 
 
 def radon_disc_rule():
@@ -197,14 +200,19 @@ def follow_reflections(psi, a, b, radius):
 def _planar_reflections(source, targets, normal, offset, on_face):
     """Mirror image in the plane n . p + offset = 0 (n the inward unit normal, a (3,)
     tuple): (P (T, 1, 3), valid (T, 1)). ``on_face(P)`` says whether points P (T, 3)
-    lie on the face."""
+    lie on the face.
+
+    A target within ``PLANE_CLEARANCE`` of the plane (a node of a disc mounted on this
+    face) has no reflection off it: its reflection point would be the target itself, a
+    path of zero length out of the wall whose direction is undefined."""
     normal = jnp.asarray(normal, targets.dtype)
     height = jnp.dot(source, normal) + offset  # > 0 inside
+    target_height = targets @ normal + offset
     image = source - 2.0 * height * normal
     along = targets - image
     t = height / jnp.maximum(jnp.sum(along * normal, axis=-1), 1e-12)
     points = image + t[:, None] * along
-    valid = on_face(points) & (t > 0) & (t < 1)
+    valid = on_face(points) & (t > 0) & (target_height > PLANE_CLEARANCE)
     return points[:, None], valid[:, None]
 
 
