@@ -158,8 +158,12 @@ def _trace(shape: Shape, grid, sensors: _Sensors, origins, directions):
     return t_end, jnp.where(hit, index, 0), hit, alive
 
 
-def _detect_on_segment(params, sensors, weight, time, directions, t_end, index, counts, n):
-    """Scatter-add the detections of rays whose segment ends on a sensor (counts > 0)."""
+def _detect_on_segment(params, sensors, weight, time, directions, t_end, index, counts, slot,
+                       size):
+    """Scatter-add the detections of rays whose segment ends on sensor ``index`` (where
+    ``counts``) into ``size`` slots at ``slot`` (the sensor, or order x N + sensor):
+    (size,) sums of c, c t, c t^2 with t = ``time`` + the segment's travel time +
+    the sensor's offset (ns)."""
     rate_total = interaction_rates(params)[3]
     cos_in = -jnp.sum(directions * sensors.normals[index], axis=-1)
     detected = (
@@ -171,11 +175,11 @@ def _detect_on_segment(params, sensors, weight, time, directions, t_end, index, 
     )
     detected = jnp.where(counts, detected, 0.0)
     arrival = time + travel_time(t_end, params) + params.time_offset[index]
-    zeros = jnp.zeros(n, dtype=weight.dtype)
+    zeros = jnp.zeros(size, dtype=weight.dtype)
     return (
-        zeros.at[index].add(detected),
-        zeros.at[index].add(detected * arrival),
-        zeros.at[index].add(detected * arrival * arrival),
+        zeros.at[slot].add(detected),
+        zeros.at[slot].add(detected * arrival),
+        zeros.at[slot].add(detected * arrival * arrival),
     )
 
 
@@ -408,33 +412,29 @@ def _disc_point(normal, radius, u1, u2):
     return rho * (jnp.cos(phi) * e1 + jnp.sin(phi) * e2)
 
 
-def _specular_probes(
-    params, shape, grid, sensors, reference, origins, directions, weight, time, focus_source
-):
-    """Light mirrored once by the wall into a sensor, from probe rays: (N,) sums of c,
-    c t, c t^2 (t - reference) like ``_next_event``.
+def _specular_probes(params, shape, grid, sensors, reference, probes: _Probes, n_orders: int):
+    """Light mirrored once by the wall into a sensor, from probe rays: (n_orders, N) sums
+    of c, c t, c t^2 (t - reference) like ``_next_event``, by the order of the mirror
+    vertex (slot k - 1 for a probe leaving a vertex of order k - 1; the source is order
+    0).
 
-    A probe leaves its vertex (``origins`` (R, 3) m, broadcast against ``directions``
-    (K, R, 3)) with expected photons ``weight`` (K, R); if it reaches the wall, not a
-    sensor, it survives there with exp(-rate_total t) R_w f_s, is mirrored, and counts
-    x exp(-rate_total t') QE eff_j A(theta) if the mirrored segment ends on sensor j,
-    arriving at ``time`` (R,) ns + the path's travel time + offset_j. A specular
-    reflection is a delta function in direction that a next-event estimate cannot see;
-    K probes per vertex with no branch choices find it with far smaller weights than
-    the rays' own continuations. With ``focus_source`` (3,) m (probes from the source)
-    only paths focused below ``FOCUSING_LIMIT`` count (the rest is ``mirror_light``).
+    A probe leaves ``probes.origins`` (P, 3) m along ``probes.directions`` with expected
+    photons ``probes.weight``; if it reaches the wall, not a sensor, it survives there
+    with exp(-rate_total t) R_w f_s, is mirrored, and counts x exp(-rate_total t') QE
+    eff_j A(theta) if the mirrored segment ends on sensor j, arriving at
+    ``probes.time`` ns + the path's travel time + offset_j. A specular reflection is a
+    delta function in direction that a next-event estimate cannot see; probes with no
+    branch choices find it with far smaller weights than the rays' own continuations.
+    Probes from the source count only paths focused below ``FOCUSING_LIMIT`` (the rest
+    is ``mirror_light``); ``probes.order`` (P,) says which left the source (0).
     """
     n = sensors.positions.shape[0]
-    probe_shape = directions.shape[:-1]
-    origins = jnp.broadcast_to(origins, directions.shape).reshape(-1, 3)
-    directions = directions.reshape(-1, 3)
-    weight = jnp.broadcast_to(weight, probe_shape).reshape(-1)
-    time = jnp.broadcast_to(time, probe_shape).reshape(-1)
+    origins, directions = probes.origins, probes.directions
     t_wall, _, on_sensor, alive = _trace(shape, grid, sensors, origins, directions)
     reaches_wall = alive & ~on_sensor
     weight = jnp.where(
         reaches_wall,
-        weight
+        probes.weight
         * jnp.exp(-interaction_rates(params)[3] * t_wall)
         * params.wall_reflectivity
         * params.wall_specular_fraction,
@@ -443,15 +443,178 @@ def _specular_probes(
     wall_point = origins + t_wall[:, None] * directions
     mirrored = specular_direction(directions, shape.inward_normal(wall_point))
     t_end, index, hit, _ = _trace(shape, grid, sensors, wall_point, mirrored)
-    counts = hit & reaches_wall
-    if focus_source is not None:
-        landing = wall_point + t_end[:, None] * mirrored
-        focusing = jax.lax.stop_gradient(focusing_ratio(shape, focus_source, wall_point, landing))
-        counts = counts & (focusing < FOCUSING_LIMIT)
-    arrival = time + travel_time(t_wall, params) - reference[index]
-    return _detect_on_segment(
-        params, sensors, weight, arrival, mirrored, t_end, index, counts, n
+    landing = wall_point + t_end[:, None] * mirrored
+    focusing = jax.lax.stop_gradient(focusing_ratio(shape, origins, wall_point, landing))
+    counts = hit & reaches_wall & ((probes.order > 0) | (focusing < FOCUSING_LIMIT))
+    arrival = probes.time + travel_time(t_wall, params) - reference[index]
+    sums = _detect_on_segment(
+        params, sensors, weight, arrival, mirrored, t_end, index, counts,
+        probes.order * n + index, n_orders * n,
     )
+    return tuple(x.reshape(n_orders, n) for x in sums)
+
+
+@pytree_dataclass
+class _Probes:
+    """Specular probe rays (P of them): origins (P, 3) m, unit directions (P, 3),
+    expected photons (P,), time at the origin (P,) ns, and the order (P,) int of the
+    vertex they leave (0: the source)."""
+
+    origins: jax.Array
+    directions: jax.Array
+    weight: jax.Array
+    time: jax.Array
+    order: jax.Array
+
+
+@pytree_dataclass
+class _Rays:
+    """The rays between two vertices: origins (R, 3) m, unit directions (R, 3),
+    expected photons (R,), time at the origin (R,) ns, and the disc each origin lies on
+    (R,) int (N for none)."""
+
+    origins: jax.Array
+    directions: jax.Array
+    weight: jax.Array
+    time: jax.Array
+    on_disc: jax.Array
+
+
+def _emitted_rays(source, key, n_rays: int, n_sensors: int, dtype) -> _Rays:
+    """``n_rays`` rays leaving the source with N / n_rays photons each, directions from a
+    shifted Fibonacci lattice through the source's inverse CDF."""
+    u_emit = shifted_lattice(key, n_rays, dtype)
+    return _Rays(
+        origins=jnp.broadcast_to(source.position, (n_rays, 3)),
+        directions=sample_directions(source, u_emit[0], u_emit[1]),
+        weight=jnp.broadcast_to(source.n_photons / n_rays, (n_rays,)).astype(dtype),
+        time=jnp.broadcast_to(source.time, (n_rays,)).astype(dtype),
+        on_disc=jnp.full(n_rays, n_sensors, dtype=jnp.int32),
+    )
+
+
+def _source_probes(source, key, count: int, dtype) -> _Probes:
+    """``count`` probes leaving the source in emission directions of their own (a
+    shifted lattice from ``key``), N / count photons each, order 0."""
+    emission = shifted_lattice(key, count, dtype)
+    return _Probes(
+        origins=jnp.broadcast_to(source.position, (count, 3)),
+        directions=sample_directions(source, emission[0], emission[1]),
+        weight=jnp.broadcast_to(source.n_photons / count, (count,)).astype(dtype),
+        time=jnp.broadcast_to(source.time, (count,)).astype(dtype),
+        order=jnp.zeros(count, jnp.int32),
+    )
+
+
+def _nee_in_blocks(nee_block, n: int, dtype, vertex_data):
+    """Next-event sums (3 x (N,)) of R vertices, ``NEE_BLOCK`` rays at a time (memory ~
+    NEE_BLOCK x N, not R x N); ``vertex_data`` are (R, ...) arrays, the second the
+    weights (padding rays get weight 0)."""
+    n_rays = vertex_data[0].shape[0]
+    block = min(NEE_BLOCK, n_rays)
+    pad = -n_rays % block
+    padded = [jnp.pad(x, [(0, pad)] + [(0, 0)] * (x.ndim - 1)) for x in vertex_data]
+    padded[1] = padded[1].at[n_rays:].set(0.0)
+    blocks = [x.reshape((-1, block) + x.shape[1:]) for x in padded]
+
+    def accumulate(total, data):
+        return tuple(a + b for a, b in zip(total, nee_block(*data), strict=True)), None
+
+    zeros = tuple(jnp.zeros(n, dtype=dtype) for _ in range(3))
+    return jax.lax.scan(accumulate, zeros, blocks)[0]
+
+
+def _vertex_probes(outgoing, sensors, u_probe, vertex, index, kind, directions, weight, time,
+                   order) -> _Probes:
+    """Probes leaving the vertices of one order: ``u_probe`` (8, K, R) uniforms give K
+    per vertex, drawn from the same proposals as the continuation (``outgoing``); one
+    off the glass leaves a point drawn uniformly on the disc, mirrored about the dome
+    there, as the NEE's ``dome_reflection_density`` assumes. Each carries 1 / K of the
+    vertex's weight times the proposal's factor. Returns flat (K R) probes."""
+    disc_normal = sensors.normals[index]
+    disc_radius = sensors.radius[index]
+
+    def probe(u):
+        offset = _disc_point(disc_normal, disc_radius, u[6], u[7])
+        dome = dome_normal(offset, disc_normal, disc_radius)
+        direction, factor = outgoing(u, specular_direction(directions, dome))
+        glass = (kind == _GLASS)[:, None]
+        return jnp.where(glass, sensors.positions[index] + offset, vertex), direction, factor
+
+    origins, probe_directions, factor = jax.vmap(probe, in_axes=1)(u_probe)
+    count = u_probe.shape[1]
+    return _Probes(
+        origins=origins.reshape(-1, 3),
+        directions=probe_directions.reshape(-1, 3),
+        weight=(weight * factor / count).reshape(-1),
+        time=jnp.broadcast_to(time, factor.shape).reshape(-1),
+        order=jnp.full(factor.size, order, jnp.int32),
+    )
+
+
+def _vertex_step(params, shape, grid, sensors, config, nee, vertex_key, probe_key,
+                 rays: _Rays, order):
+    """One vertex per ray (scan body): trace the segment, propose the vertex (a bulk
+    scatter with probability 1/2 at s uniform in [0, t_end], else the segment's end:
+    wall, or sensor glass if a sensor was hit), next-event estimate to every sensor,
+    the specular probes leaving it (``_vertex_probes``, when the detector has walls),
+    and the continuation. Returns (next rays, (NEE sums, probes or None))."""
+    dtype = rays.weight.dtype
+    n = sensors.positions.shape[0]
+    n_rays = rays.weight.shape[0]
+    has_walls = shape.has_walls
+    u = jax.random.uniform(
+        jax.random.fold_in(vertex_key, order), (_UNIFORMS_PER_VERTEX, n_rays), dtype=dtype
+    )
+    directions = rays.directions
+    t_end, index, hit, alive = _trace(shape, grid, sensors, rays.origins, directions)
+    weight = jnp.where(alive, rays.weight, 0.0)
+    scatter = u[0] < 0.5
+    s = jnp.where(scatter, u[1] * t_end, t_end)
+    weight = weight * jnp.exp(-interaction_rates(params)[3] * s) / 0.5
+    weight = jnp.where(scatter, weight * t_end, weight)
+    vertex = rays.origins + s[:, None] * directions
+    time = rays.time + travel_time(s, params)
+    kind = jnp.where(scatter, _SCATTER, jnp.where(hit, _GLASS, _WALL))
+    wall_normal = shape.inward_normal(vertex) if has_walls else -directions
+    glass_normal = sensors.normals[index]
+    normal = jnp.where((kind == _GLASS)[:, None], glass_normal, wall_normal)
+    if not has_walls:
+        weight = jnp.where(kind == _WALL, 0.0, weight)
+    # a vertex on a disc (glass, or the wall right under it after the glass sent the
+    # ray below the disc's plane) never lights that disc: it lies in the disc's
+    # plane, but rounding can tilt it into view, where the exact solid angle is 2 pi
+    still_on_disc = (kind == _WALL) & (s == 0)
+    own_disc = jnp.where(kind == _GLASS, index, jnp.where(still_on_disc, rays.on_disc, n))
+    detected = nee(vertex, weight, time, kind, directions, normal, own_disc)
+    outgoing = functools.partial(_outgoing, params, config, kind, directions, normal)
+    probes = None
+    if has_walls:  # light of this vertex mirrored once by the wall into a sensor
+        u_probe = jax.random.uniform(
+            jax.random.fold_in(probe_key, order),
+            (_UNIFORMS_PER_VERTEX, config.specular_probes, n_rays),
+            dtype=dtype,
+        )
+        probes = _vertex_probes(
+            outgoing, sensors, u_probe, vertex, index, kind, directions, weight, time, order
+        )
+    glass_direction = specular_direction(
+        directions,
+        dome_normal(vertex - sensors.positions[index], glass_normal, sensors.radius[index]),
+    )
+    directions, factor = outgoing(u, glass_direction)
+    return _Rays(vertex, directions, weight * factor, time, own_disc), (detected, probes)
+
+
+def _moments(total, reference_time) -> tuple:
+    """(charge, mean, variance) from sums of c, c (t - ref), c (t - ref)^2; mean and
+    variance 0 where there is no light (mean then equals the reference)."""
+    charge, first, second = total
+    positive = charge > 0
+    safe = jnp.where(positive, charge, 1.0)
+    mean = jnp.where(positive, first / safe, 0.0)
+    variance = jnp.where(positive, jnp.maximum(second / safe - mean * mean, 0.0), 0.0)
+    return charge, mean + reference_time, variance
 
 
 @functools.partial(jax.jit, static_argnames=("shape", "config"))
@@ -480,20 +643,18 @@ def indirect_light_jit(
     run; they do not depend on ``Params``); None computes them here, differentiably in
     the source position. ``shape`` and ``config`` are static. Returns an
     ``IndirectLight``.
+
+    The stages: rays leave the source (``_emitted_rays``); one ``lax.scan`` over the
+    orders 1..n_bounces runs ``_vertex_step`` (trace, vertex, next-event estimate,
+    probes, continuation); the probes of the source and of every order below the cap
+    are traced together (``_specular_probes``); the segment after the last vertex gives
+    the residual weight; the source's first-order mirror light is added by quadrature.
     """
     dtype = sensor_positions.dtype
     n = sensor_positions.shape[0]
-    n_rays = config.n_rays
     sensors = _Sensors(sensor_positions, sensor_normals, sensor_radius)
-    has_walls = shape.has_walls
     emit_key, vertex_key, probe_key = jax.random.split(key, 3)
-    u_emit = shifted_lattice(emit_key, n_rays, dtype)
-    directions = sample_directions(source, u_emit[0], u_emit[1])
-    origins = jnp.broadcast_to(source.position, (n_rays, 3))
-    weight = jnp.broadcast_to(source.n_photons / n_rays, (n_rays,)).astype(dtype)
-    time = jnp.broadcast_to(source.time, (n_rays,)).astype(dtype)
-    on_disc = jnp.full(n_rays, n, dtype=jnp.int32)  # the disc a ray's origin lies on
-    rate_total = interaction_rates(params)[3]
+    rays = _emitted_rays(source, emit_key, config.n_rays, n, dtype)
     far = functools.partial(_next_event, params, sensors, config, reference_time)
     near = None
     if near_grid is not None:
@@ -508,128 +669,34 @@ def indirect_light_jit(
             return sums
         return tuple(a + b for a, b in zip(sums, near(*vertex_data), strict=True))
 
-    def nee(*vertex_data):
-        """NEE summed over blocks of NEE_BLOCK rays (memory ~ NEE_BLOCK x N, not R x N)."""
-        block = min(NEE_BLOCK, n_rays)
-        pad = -n_rays % block
-        padded = [jnp.pad(x, [(0, pad)] + [(0, 0)] * (x.ndim - 1)) for x in vertex_data]
-        padded[1] = padded[1].at[n_rays:].set(0.0)  # weight 0 for the padding rays
-        blocks = [x.reshape((-1, block) + x.shape[1:]) for x in padded]
-
-        def accumulate(total, data):
-            return tuple(a + b for a, b in zip(total, nee_block(*data), strict=True)), None
-
-        zeros = tuple(jnp.zeros(n, dtype=dtype) for _ in range(3))
-        return jax.lax.scan(accumulate, zeros, blocks)[0]
-
-    probes = functools.partial(_specular_probes, params, shape, grid, sensors, reference_time)
-
-    def step(carry, order, with_probes: bool):
-        origins, directions, weight, time, on_disc = carry
-        u = jax.random.uniform(
-            jax.random.fold_in(vertex_key, order), (_UNIFORMS_PER_VERTEX, n_rays), dtype=dtype
-        )
-        t_end, index, hit, alive = _trace(shape, grid, sensors, origins, directions)
-        weight = jnp.where(alive, weight, 0.0)
-        # next vertex: bulk scatter (proposal 1/2, uniform in [0, t_end]) or segment end
-        scatter = u[0] < 0.5
-        s = jnp.where(scatter, u[1] * t_end, t_end)
-        weight = weight * jnp.exp(-rate_total * s) / 0.5
-        weight = jnp.where(scatter, weight * t_end, weight)
-        vertex = origins + s[:, None] * directions
-        time = time + travel_time(s, params)
-        kind = jnp.where(scatter, _SCATTER, jnp.where(hit, _GLASS, _WALL))
-        wall_normal = shape.inward_normal(vertex) if has_walls else -directions
-        glass_normal = sensor_normals[index]
-        normal = jnp.where((kind == _GLASS)[:, None], glass_normal, wall_normal)
-        if not has_walls:
-            weight = jnp.where(kind == _WALL, 0.0, weight)
-        # a vertex on a disc (glass, or the wall right under it after the glass sent the
-        # ray below the disc's plane) never lights that disc: it lies in the disc's
-        # plane, but rounding can tilt it into view, where the exact solid angle is 2 pi
-        still_on_disc = (kind == _WALL) & (s == 0)
-        own_disc = jnp.where(kind == _GLASS, index, jnp.where(still_on_disc, on_disc, n))
-        detected = nee(vertex, weight, time, kind, directions, normal, own_disc)
-        glass_direction = specular_direction(
-            directions,
-            dome_normal(vertex - sensor_positions[index], glass_normal, sensor_radius[index]),
-        )
-        outgoing = functools.partial(_outgoing, params, config, kind, directions, normal)
-        if with_probes:  # light of this vertex mirrored once by the wall into a sensor
-            u_probe = jax.random.uniform(
-                jax.random.fold_in(probe_key, order),
-                (_UNIFORMS_PER_VERTEX, config.specular_probes, n_rays),
-                dtype=dtype,
-            )
-
-            def probe(u):
-                """A probe leaving the vertex: (origin, direction, weight factor). One
-                off the glass leaves a point drawn uniformly on the disc, mirrored about
-                the dome there, as the NEE's ``dome_reflection_density`` assumes."""
-                offset = _disc_point(glass_normal, sensor_radius[index], u[6], u[7])
-                dome = dome_normal(offset, glass_normal, sensor_radius[index])
-                direction, factor = outgoing(u, specular_direction(directions, dome))
-                glass = (kind == _GLASS)[:, None]
-                return jnp.where(glass, sensor_positions[index] + offset, vertex), direction, factor
-
-            probe_origins, probe_directions, probe_factor = jax.vmap(probe, in_axes=1)(u_probe)
-            mirrored = probes(
-                probe_origins, probe_directions,
-                weight * probe_factor / config.specular_probes, time, None,
-            )
-        else:
-            mirrored = ()
-        directions, factor = outgoing(u, glass_direction)
-        carry = (vertex, directions, weight * factor, time, own_disc)
-        return carry, (mirrored, detected)
-
-    carry = (origins, directions, weight, time, on_disc)
+    step = functools.partial(
+        _vertex_step, params, shape, grid, sensors, config,
+        lambda *data: _nee_in_blocks(nee_block, n, dtype, data), vertex_key, probe_key,
+    )
     orders = jnp.arange(1, config.n_bounces + 1)
-    with_mirror = has_walls and config.n_bounces > 0
-    # vertices of order k < n_bounces send specular probes (their mirror vertex, order
-    # k + 1, is within the cap); the last order's vertices do not
-    carry, (mirrored, detected) = jax.lax.scan(
-        functools.partial(step, with_probes=with_mirror), carry, orders[:-1]
-    )
-    carry, (_, last) = step(carry, orders[-1], with_probes=False) if orders.size else (
-        carry, ((), tuple(jnp.zeros((0, n), dtype) for _ in range(3)))
-    )
-    origins, directions, weight, _, _ = carry
-    t_end, _, hit, alive = _trace(shape, grid, sensors, origins, directions)
-    residual = _residual(params, has_walls, jnp.where(alive, weight, 0.0), t_end, hit)
-    total = [jnp.concatenate([d, l[None]], axis=0) if orders.size else l
-             for d, l in zip(detected, last, strict=True)]
-    if with_mirror:
-        # source light mirrored once into a sensor near caustics (the rest is
-        # ``mirror_light``'s quadrature), from emission directions of its own; it and
-        # the probes of order-k vertices are the light whose mirror vertex is order k + 1
-        emission = shifted_lattice(probe_key, config.specular_probes * n_rays, dtype)
-        source_mirrored = probes(
-            source.position,
-            sample_directions(source, emission[0], emission[1]),
-            jnp.asarray(source.n_photons / emission.shape[1], dtype),
-            jnp.asarray(source.time, dtype),
-            source.position,
+    rays, (detected, probes) = jax.lax.scan(step, rays, orders)  # detected: 3 x (K, N)
+    t_end, _, hit, alive = _trace(shape, grid, sensors, rays.origins, rays.directions)
+    residual = _residual(params, shape.has_walls, jnp.where(alive, rays.weight, 0.0), t_end, hit)
+    total = list(detected)
+    if shape.has_walls and config.n_bounces > 0:
+        # specular probes of the source and of the vertices below the cap (whose mirror
+        # vertex, order k + 1, is within it), traced together
+        below_cap = jax.tree.map(lambda x: x[:-1].reshape((-1,) + x.shape[2:]), probes)
+        from_source = _source_probes(source, probe_key, config.specular_probes * config.n_rays,
+                                     dtype)
+        everything = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), from_source, below_cap)
+        mirrored = _specular_probes(
+            params, shape, grid, sensors, reference_time, everything, config.n_bounces
         )
-        total = [
-            t + jnp.concatenate([first[None], rest], axis=0)
-            for t, first, rest in zip(total, source_mirrored, mirrored, strict=True)
-        ]
         if mirror is None:
             mirror = mirror_paths(shape, grid, sensor_positions, sensor_normals,
                                   sensor_radius, source, near_grid)
-        mirrored = mirror_light(params, mirror, source, reference_time)
-        total = [t.at[0].add(m) for t, m in zip(total, mirrored, strict=True)]
-    charge, first, second = total
-    positive = charge > 0
-    safe = jnp.where(positive, charge, 1.0)
-    mean = jnp.where(positive, first / safe, 0.0)
-    variance = jnp.where(positive, jnp.maximum(second / safe - mean * mean, 0.0), 0.0)
+        quadrature = mirror_light(params, mirror, source, reference_time)
+        total = [t + m + jnp.zeros_like(t).at[0].set(q)
+                 for t, m, q in zip(total, mirrored, quadrature, strict=True)]
+    charge, mean, variance = _moments(total, reference_time)
     return IndirectLight(
-        charge=charge,
-        time_mean=mean + reference_time,
-        time_variance=variance,
-        residual_weight=residual,
+        charge=charge, time_mean=mean, time_variance=variance, residual_weight=residual
     )
 
 

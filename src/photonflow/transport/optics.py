@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -94,12 +95,13 @@ def sample_rayleigh_cos(u, anisotropy, iterations: int = 12):
     a <= 1); differentiable in u and a.
     """
     target = 2.0 * (1.0 + anisotropy / 3.0) * u - 1.0 - anisotropy / 3.0  # g(mu) = target
-    mu = 2.0 * u - 1.0
-    for _ in range(iterations):
+
+    def newton(_, mu):
         value = mu + anisotropy * mu**3 / 3.0 - target
         slope = 1.0 + anisotropy * mu**2
-        mu = jnp.clip(mu - value / slope, -1.0, 1.0)
-    return mu
+        return jnp.clip(mu - value / slope, -1.0, 1.0)
+
+    return jax.lax.fori_loop(0, iterations, newton, 2.0 * u - 1.0)
 
 
 def henyey_greenstein_density(cos_theta, g):
