@@ -25,11 +25,13 @@ mixture of densities, so normalisation is kept) into the Gaussian approximation
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.scipy.special import gammaln, log_ndtr, ndtr
 
 from .errors import ConfigError
@@ -250,7 +252,19 @@ def first_hit_logpdf(
 
 def hit_arrays(event: Event, n: int, dtype) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Scatter sparse hits to (N,) arrays: hit mask, summed charge (p.e.) and earliest
-    time (ns; 0 where not hit)."""
+    time (ns; 0 where not hit). A concrete event is scattered with numpy (no
+    compilation per hit count); traced hits with JAX."""
+    fields = (event.sensor_ids, event.charge, event.time)
+    if not any(isinstance(x, jax.core.Tracer) for x in fields):
+        ids = np.asarray(event.sensor_ids, dtype=np.int64)
+        hit = np.zeros(n, dtype=bool)
+        hit[ids] = True
+        q = np.zeros(n)
+        np.add.at(q, ids, np.asarray(event.charge, dtype=np.float64))
+        t = np.full(n, np.inf)
+        np.minimum.at(t, ids, np.asarray(event.time, dtype=np.float64))
+        return (jnp.asarray(hit), jnp.asarray(q, dtype=dtype),
+                jnp.asarray(np.where(hit, t, 0.0), dtype=dtype))
     ids = jnp.asarray(event.sensor_ids, dtype=jnp.int32)
     charge = jnp.asarray(event.charge).astype(dtype)
     time = jnp.asarray(event.time).astype(dtype)
@@ -311,6 +325,7 @@ def sensor_nll(
     )
 
 
+@functools.partial(jax.jit, static_argnames=("window", "charge_threshold", "use_time"))
 def dense_sensor_nll(
     prediction: Prediction,
     hit: jax.Array,

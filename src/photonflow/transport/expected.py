@@ -18,14 +18,16 @@ sensor with no light at all gets all weight on component 0 (finite and harmless)
 from __future__ import annotations
 
 import functools
+from weakref import WeakKeyDictionary
 
 import jax
 import jax.numpy as jnp
 
 from ..geometry.detector import Detector
 from ..geometry.sensor_grid import SensorGrid
-from ..params import Params
+from ..params import Params, validate_params
 from ..prediction import Prediction
+from ..sources import check_source
 from .direct import direct_light_jit
 from .indirect import indirect_light_jit, near_grid_for, sensor_grid_for
 from .optics import TransportConfig
@@ -41,6 +43,12 @@ def expected(
     grid: SensorGrid | None = None,
 ) -> Prediction:
     """Expected p.e. and arrival-time mixture per sensor from a point source.
+
+    Works as JAX users write it: ``jax.jit(lambda p: expected(detector, p, source))``,
+    ``jax.grad`` of a loss built on it, ``jax.vmap`` over a batch of sources (a source
+    whose leaves have a leading axis). The detector's arrays and lookup grids are
+    prepared once per detector, dtype and config (``expected_function``) and reused,
+    so a second call, traced or not, does not recompile.
 
     Args:
         detector: sensors (positions m, inward normals, radii m) and boundary.
@@ -59,28 +67,45 @@ def expected(
         ``Prediction`` with ``charge`` (N,) p.e., a (N, 1 + n_bounces) time mixture in ns
         and ``residual_weight`` (photons still alive at the bounce cap). Differentiable
         in every field of ``params`` and ``source``; new values never recompile.
+
+    Raises:
+        ConfigError: concrete (not traced) ``params`` or ``source`` out of their domain,
+            e.g. a source outside the detector, n_photons <= 0 or a NaN position (the
+            same checks as ``sample``). Traced values are not checked: inside ``jit``
+            a bad value gives a meaningless (possibly NaN) prediction, as any JAX
+            function would.
     """
     config = TransportConfig() if config is None else config
-    if key is None:
-        key = jax.random.key(0)
+    if is_concrete(params):
+        validate_params(params, detector.n_sensors)
+    if is_concrete(source):
+        check_source(source, detector)
     dtype = jnp.result_type(params.absorption_length)
     predict = expected_function(detector, dtype, config=config, grid=grid)
     return predict(params, source, key)
+
+
+def is_concrete(tree) -> bool:
+    """True when no leaf of ``tree`` is a JAX tracer (its values can be checked)."""
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(tree))
 
 
 def expected_inputs(detector: Detector, dtype=None, grid: SensorGrid | None = None) -> tuple:
     """The detector arrays ``expected_jit`` takes: (sensor centres (N, 3) m, inward
     normals (N, 3), disc radii (N,) m) in ``dtype`` (default JAX's default float), the
     sensor lookup grid (``grid``, or the detector's own; None for an open medium) and
-    the near-sensor grid."""
-    dtype = jnp.zeros(()).dtype if dtype is None else dtype
-    if grid is None and detector.shape.has_walls:
-        grid = sensor_grid_for(detector)
-    arrays = (
-        jnp.asarray(x, dtype=dtype) + jnp.zeros((), dtype)  # drops weak typing
-        for x in (detector.sensor_positions, detector.sensor_normals, detector.sensor_radius)
-    )
-    return (*arrays, grid, near_grid_for(detector))
+    the near-sensor grid. Evaluated eagerly even inside a traced function."""
+    with jax.ensure_compile_time_eval():
+        dtype = jnp.zeros(()).dtype if dtype is None else dtype
+        if grid is None and detector.shape.has_walls:
+            grid = sensor_grid_for(detector)
+        arrays = (
+            jnp.asarray(x, dtype=dtype) + jnp.zeros((), dtype)  # drops weak typing
+            for x in (
+                detector.sensor_positions, detector.sensor_normals, detector.sensor_radius
+            )
+        )
+        return (*arrays, grid, near_grid_for(detector))
 
 
 def expected_function(
@@ -90,10 +115,14 @@ def expected_function(
     config: TransportConfig | None = None,
     grid: SensorGrid | None = None,
 ):
-    """``expected`` with the detector prepared once: a function
-    ``predict(params, source, key) -> Prediction`` that may be traced, jitted, vmapped
-    or differentiated as a whole (``expected`` itself builds grids from the concrete
-    detector and so is called outside ``jit``).
+    """The prepared predictor: a function ``predict(params, source, key=None) ->
+    Prediction`` with the detector's arrays and grids built once and closed over.
+
+    ``expected`` calls it (and checks concrete inputs first); use it directly in code
+    that calls the prediction many times outside ``jit`` with values known to be good
+    (no checks, no cache lookup), or to hand a plain function of (params, source, key)
+    to ``jit``, ``grad``, ``vmap`` or an optimiser. Without ``grid`` the predictor is
+    cached per detector object, dtype and config.
 
     Args:
         detector: sensors (positions m, normals, radii m) and boundary.
@@ -103,20 +132,36 @@ def expected_function(
         grid: sensor lookup grid (default: built once per detector object).
     """
     config = TransportConfig() if config is None else config
-    dtype = jnp.zeros(()).dtype if dtype is None else dtype
+    dtype = jnp.dtype(jnp.zeros(()).dtype if dtype is None else dtype)
+    if grid is not None:
+        return _predictor(detector, dtype, config, grid)
+    cached = _PREDICTORS.setdefault(detector, {})
+    if (dtype, config) not in cached:
+        cached[(dtype, config)] = _predictor(detector, dtype, config, None)
+    return cached[(dtype, config)]
+
+
+def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
+    """``expected_function``'s predictor, uncached."""
 
     def cast(leaf):
         return jnp.asarray(leaf, dtype=dtype) + jnp.zeros((), dtype)  # drops weak typing
 
     positions, normals, radius, grid, near_grid = expected_inputs(detector, dtype, grid)
 
-    def predict(params: Params, source, key) -> Prediction:
+    def predict(params: Params, source, key=None) -> Prediction:
+        """Expected p.e. and time mixture per sensor (see ``expected``); no checks."""
+        key = jax.random.key(0) if key is None else key
         return expected_jit(
             positions, normals, radius, grid, jax.tree.map(cast, params),
             jax.tree.map(cast, source), key, near_grid, shape=detector.shape, config=config,
         )
 
     return predict
+
+
+#: Prepared predictors per detector object (weak: a pure cache), keyed by (dtype, config).
+_PREDICTORS: WeakKeyDictionary = WeakKeyDictionary()
 
 
 @functools.partial(jax.jit, static_argnames=("shape", "config"))
