@@ -8,7 +8,6 @@ nothing behind.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import math
 import sys
@@ -21,10 +20,21 @@ from rich.console import Console
 from rich.table import Table
 
 from . import __version__
+from .cli_errors import (
+    EXIT_BAD_INPUT,
+    EXIT_INTERRUPTED,
+    MAX_BOUNCES,
+    MAX_EVENTS,
+    MAX_PHOTONS,
+    check_simulate_counts,
+    error_line,
+    out_of_memory,
+    refuse_inapplicable_light,
+)
 from .errors import PhotonflowError
+from .interrupts import terminate_as_interrupt
 
-#: Exit code of a command given bad input (the same as a command-line usage error).
-EXIT_BAD_INPUT = 2
+__all__ = ["app", "main", "terminate_as_interrupt"]
 
 app = typer.Typer(
     name="photonflow",
@@ -38,13 +48,14 @@ F = TypeVar("F", bound=Callable)
 
 def fail(message: str) -> typer.Exit:
     """Print ``error: <message>`` as one line on stderr; return the exit to raise (code 2)."""
-    sys.stderr.write(f"error: {' '.join(message.split())}\n")
-    sys.stderr.flush()
+    error_line(message)
     return typer.Exit(code=EXIT_BAD_INPUT)
 
 
-def command(function: F) -> F:
-    """Register ``function`` as a sub-command that turns ``PhotonflowError`` into exit 2."""
+def guarded(function: F) -> F:
+    """``function`` with bad input (any ``PhotonflowError``) and running out of memory
+    reported as one ``error:`` line and exit code 2, and an interrupt ending in exit
+    code 130."""
 
     @functools.wraps(function)
     def run(*args, **kwargs):
@@ -52,8 +63,20 @@ def command(function: F) -> F:
             return function(*args, **kwargs)
         except PhotonflowError as error:
             raise fail(str(error)) from None
+        except KeyboardInterrupt:  # the console entry says "interrupted"
+            raise typer.Exit(code=EXIT_INTERRUPTED) from None
+        except Exception as error:
+            if not out_of_memory(error):
+                raise
+            raise fail(f"out of memory ({type(error).__name__}); ask for less: fewer"
+                       " --events, --photons or --rays") from None
 
-    app.command()(run)
+    return run
+
+
+def command(function: F) -> F:
+    """Register ``function`` as a sub-command of ``photonflow`` (``guarded``)."""
+    app.command()(guarded(function))
     return function
 
 
@@ -207,10 +230,10 @@ def track_sources(detector, particle, energy, energy_range, vertex, direction, m
     """The per-event ``Track``s of ``simulate --particle`` (``random_tracks``), with
     one-line errors naming the option, and the settings that make them (a JSON-able
     dict: particle, energy MeV or [low, high], spectrum, vertex, direction,
-    fiducial_margin m)."""
+    fiducial_margin m; ``margin`` None: ``default_fiducial_margin``)."""
     from .errors import ConfigError
     from .generator.particles import PARTICLES
-    from .transport.tracks import random_tracks
+    from .transport.tracks import default_fiducial_margin, random_tracks
 
     if particle not in PARTICLES:
         raise ConfigError(f"--particle = {particle!r}: must be one of {', '.join(PARTICLES)}")
@@ -221,6 +244,8 @@ def track_sources(detector, particle, energy, energy_range, vertex, direction, m
         vertex = point
     if direction != "isotropic":
         direction = parse_unit_vector(direction, "--direction")
+    if margin is None:
+        margin = default_fiducial_margin(detector)
     if not (math.isfinite(margin) and margin >= 0):
         raise ConfigError(f"--fiducial-margin = {margin:g}: must be >= 0 m")
     energies = parse_energies(energy, energy_range, spectrum)
@@ -247,42 +272,28 @@ def source_settings(source) -> dict:
     return {"source": type(source).__name__, **fields}
 
 
-def interrupted(writer, events: int) -> typer.Exit:
-    """Report an interrupted ``simulate`` in one line; return the exit to raise (130)."""
+def interrupted(writer, events: int, interrupts) -> typer.Exit:
+    """Report an interrupted ``simulate`` in one line (marking ``interrupts`` reported);
+    return the exit to raise (130: ``main`` then leaves at once,
+    ``cli_errors.run_console``)."""
     from .io.writer import checkpoint_path
 
     done = writer.n_run_events
     kept = checkpoint_path(writer.path)
-    advice = (
-        f"{kept.name} keeps them: run the same command with --resume to finish"
-        if done and kept.exists() else "nothing kept"
-    )
+    if done and kept.exists():
+        advice = f"{kept.name} keeps them: run the same command with --resume to finish"
+    elif done == events and writer.path.exists():
+        advice = f"{writer.path.name} was already complete"
+    else:
+        advice = "nothing kept"
     sys.stderr.write(f"interrupted after {done} of {events} events; {advice}\n")
-    return typer.Exit(code=130)
-
-
-@contextlib.contextmanager
-def terminate_as_interrupt():
-    """Within the block, SIGTERM (``kill``) raises ``KeyboardInterrupt`` like Ctrl-C,
-    so that an interrupted write keeps its checkpoint."""
-    import signal
-
-    def handler(signum, frame):
-        raise KeyboardInterrupt
-
-    try:
-        previous = signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread: leave SIGTERM alone
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    interrupts.reported = True
+    return typer.Exit(code=EXIT_INTERRUPTED)
 
 
 @command
 def simulate(
+    context: typer.Context,
     out: Annotated[Path, typer.Option("--out", "-o", help="Event file to write (HDF5).")],
     detector: Annotated[str, typer.Option(
         "--detector", "-d", help="Preset name or configuration file.")] = "SK",
@@ -299,8 +310,10 @@ def simulate(
              " (dN/dE ~ E^-GAMMA; 1 = log-uniform).")] = None,
     vertex: Annotated[str, typer.Option(
         help="Track start: uniform-fiducial or x,y,z in m.")] = "uniform-fiducial",
-    fiducial_margin: Annotated[float, typer.Option(
-        "--fiducial-margin", help="Fiducial volume: this far (m) from every wall.")] = 2.0,
+    fiducial_margin: Annotated[float | None, typer.Option(
+        "--fiducial-margin", help="Fiducial volume for uniform-fiducial vertices: this far"
+             " (m) from every wall. Default: 2 m, or a quarter of the distance from the"
+             " centre to the nearest wall where that is less (0.5 m in the 4 m toys).")] = None,
     position: Annotated[str, typer.Option(help="Source position x,y,z in m.")] = "0,0,0",
     direction: Annotated[str | None, typer.Option(
         help="Laser/diffuser axis x,y,z, or track direction: isotropic (default for"
@@ -308,17 +321,20 @@ def simulate(
     opening_angle: Annotated[float | None, typer.Option(
         "--opening-angle", help="Laser cone half-angle, rad.")] = None,
     anisotropy: Annotated[float, typer.Option(help="Diffuser anisotropy a in [-1, 1].")] = 0.0,
-    photons: Annotated[float, typer.Option(help="Photons per pulse.")] = 1e6,
+    photons: Annotated[float, typer.Option(
+        help=f"Photons per pulse, at most {MAX_PHOTONS:.0e}.")] = 1e6,
     pulse_width: Annotated[float, typer.Option(
         "--pulse-width", help="Source pulse width (Gaussian sigma), ns.")] = 0.0,
-    events: Annotated[int, typer.Option(help="Number of events (pulses or tracks).")] = 1,
+    events: Annotated[int, typer.Option(
+        help=f"Number of events (pulses or tracks), 1 to {MAX_EVENTS:,}.")] = 1,
     seed: Annotated[int, typer.Option(help="Random seed (same seed, same events).")] = 0,
     bounces: Annotated[int, typer.Option(
-        help="Scatterings/reflections followed per photon.")] = 2,
+        help=f"Scatterings/reflections followed per photon, 0 to {MAX_BOUNCES}.")] = 2,
     mode: Annotated[str, typer.Option(
         help="create (refuse to overwrite), recreate or append.")] = "create",
     workers: Annotated[int | None, typer.Option(
-        help="Run on a local Dask cluster of this many worker processes.")] = None,
+        help="Run on a local Dask cluster of this many worker processes (at most 4 per"
+             " CPU core).")] = None,
     scheduler: Annotated[str | None, typer.Option(
         help="Run on the existing Dask cluster whose scheduler is at this address"
              " (e.g. tcp://host:8786).")] = None,
@@ -340,16 +356,12 @@ def simulate(
     from .transport.optics import TransportConfig
     from .transport.production import produce_events
 
-    if events < 1:
-        raise ConfigError(f"--events = {events}: must be >= 1")
-    if bounces < 0:
-        raise ConfigError(f"--bounces = {bounces}: must be >= 0")
+    check_simulate_counts(events, bounces, workers, photons)
     if particle is not None and source is not None:
         raise ConfigError(f"--source = {source!r}: not with --particle (choose one)")
     if workers is not None and scheduler is not None:
         raise ConfigError(f"--scheduler = {scheduler!r}: not with --workers (choose one)")
-    if workers is not None and workers < 1:
-        raise ConfigError(f"--workers = {workers}: must be >= 1")
+    refuse_inapplicable_light(context, particle, source, vertex)
     setup = load_setup(detector)
     if particle is not None:
         light, settings = track_sources(
@@ -369,18 +381,23 @@ def simulate(
                     photonflow_version=__version__)
     writer = EventWriter(out, setup.detector, setup.params, mode=mode, chunk_events=100,
                          run=settings, resume=resume)
-    with terminate_as_interrupt():
+    produced = None
+    with terminate_as_interrupt() as interrupts:
         try:
             with writer:
                 done = writer.n_run_events
-                writer.extend(produce_events(
+                produced = produce_events(
                     setup.detector, setup.params,
                     light[done:] if particle is not None else light, seed, events - done,
                     first_event=done, config=TransportConfig(n_bounces=bounces),
                     medium=setup.medium, workers=workers, scheduler=scheduler, progress=True,
-                ))
+                )
+                writer.extend(interrupts.checked(produced))
+                interrupts.check()  # one whose exception was lost: keep, do not commit
         except KeyboardInterrupt:
-            raise interrupted(writer, events) from None
+            if hasattr(produced, "close"):
+                produced.close()  # stops a local Dask cluster now, not at exit
+            raise interrupted(writer, events, interrupts) from None
     console().print(
         f"wrote {events} events to {writer.path} ({setup.detector.describe()})"
         + (f", resumed at event {done}" if resume else ""),
@@ -720,5 +737,8 @@ def _parse_floats(text: str, option: str) -> tuple[float, ...]:
 
 
 def main() -> None:
-    """Entry point of the ``photonflow`` console script and ``python -m photonflow``."""
-    app(prog_name="photonflow")
+    """Entry point of the ``photonflow`` console script and ``python -m photonflow``
+    (``cli_errors.run_console``: usage errors as one line, exit 130 when interrupted)."""
+    from .cli_errors import run_console
+
+    run_console(app, prog_name="photonflow")
