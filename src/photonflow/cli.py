@@ -23,12 +23,21 @@ from . import __version__
 from .cli_errors import (
     EXIT_BAD_INPUT,
     EXIT_INTERRUPTED,
+    EXIT_NOT_CONVERGED,
     MAX_BOUNCES,
     MAX_EVENTS,
     MAX_PHOTONS,
+    MAX_RAYS,
+    MAX_REPEATS,
+    MIN_CALIBRATION_RAYS,
+    check_benchmark_options,
+    check_calibration_options,
+    check_output_file,
+    check_output_folder,
     check_simulate_counts,
     error_line,
     out_of_memory,
+    refuse_fit_options,
     refuse_inapplicable_light,
 )
 from .errors import PhotonflowError
@@ -153,6 +162,7 @@ def geometry(
 
     if out is not None:
         check_picture_path(out)
+        check_output_file(out, "--out")
     loaded = load_detector(detector)
     path = out if out is not None else Path(f"geometry_{loaded.name}.png")
     plot_detector(loaded, path)
@@ -420,6 +430,7 @@ def display(
 
     if out is not None:
         check_picture_path(out)
+        check_output_file(out, "--out")
     with read_events(path) as events:
         if not -len(events) <= event < len(events):
             held = f"events 0..{len(events) - 1}" if len(events) else "no events"
@@ -439,9 +450,12 @@ def calibration_rich_table(result) -> Table:
     from .params import SPECS
 
     truth = result.truth
-    pulls = result.pulls() if truth is not None else {}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pulls = result.pulls() if truth is not None else {}
+    status = "" if result.converged or result.message.startswith("not converged") else (
+        "not converged: ")
     table = Table(title=f"calibration ({result.method}, {result.likelihood} likelihood):"
-                        f" {result.message}", title_justify="left")
+                        f" {status}{result.message}", title_justify="left")
     for title in ("parameter", "fitted", "error", "true", "pull"):
         table.add_column(title, justify="left" if title == "parameter" else "right")
     for name in result.free:
@@ -464,7 +478,8 @@ def calibration_rich_table(result) -> Table:
         for k in range(fitted.size):
             label = f"{name}[{k}]" if spec.size else name
             table.add_row(
-                label + unit, f"{fitted[k]:.5g}", f"{error[k]:.3g}",
+                label + unit, f"{fitted[k]:.5g}",
+                f"{error[k]:.3g}" if np.isfinite(error[k]) else f"{error[k]} (no measurement)",
                 "-" if true is None else f"{true[k]:.5g}",
                 "-" if pull is None else f"{pull[k]:+.2f}",
             )
@@ -490,6 +505,7 @@ class _FitProgress:
 
 @command
 def calibrate(
+    context: typer.Context,
     files: Annotated[list[Path] | None, typer.Argument(
         metavar="FILE...", help="Event files of calibration runs (photonflow simulate),"
                                 " one run each.")] = None,
@@ -507,9 +523,11 @@ def calibrate(
     method: Annotated[str, typer.Option(help="gauss-newton, lbfgs or adam.")] = "gauss-newton",
     likelihood: Annotated[str, typer.Option(help="charge or charge+time.")] = "charge",
     rays: Annotated[int, typer.Option(
-        help="Rays per source for the expected mode's indirect light.")] = 4096,
+        help=f"Rays per source for the expected mode's indirect light,"
+             f" {MIN_CALIBRATION_RAYS} to {MAX_RAYS:,}.")] = 4096,
     bounces: Annotated[int | None, typer.Option(
-        help="Scatterings/reflections followed (default: the files' 'bounces').")] = None,
+        help=f"Scatterings/reflections followed, 0 to {MAX_BOUNCES} (default: the files'"
+             " 'bounces').")] = None,
     max_iterations: Annotated[int, typer.Option(
         "--max-iterations", help="Iteration limit.")] = 50,
     report: Annotated[Path | None, typer.Option(
@@ -523,6 +541,9 @@ def calibrate(
         help="Average the independent-ray score's weights over this many ray sets, once"
              " (default: calibrate()'s, 4); 0: a fresh set every step"
              " (docs/calibration.md).")] = None,
+    mode: Annotated[str, typer.Option(
+        help="create (refuse to overwrite an existing --out, checked before the fit) or"
+             " recreate.")] = "create",
 ) -> None:
     """Fit detector parameters (absorption and scattering lengths, reflectivities,
     per-sensor efficiency and time offset, ...) to calibration runs and write the result
@@ -533,6 +554,7 @@ def calibrate(
     if report is not None:
         if files:
             raise ConfigError(f"FILE = {str(files[0])!r}: not with --report (choose one)")
+        refuse_fit_options(context)
         _calibration_report(report, out, detector)
         return
     if out is None:
@@ -542,14 +564,16 @@ def calibrate(
     if not files:
         raise ConfigError("FILE: give at least one event file of a calibration run")
     _calibration_fit(files, out, detector, free, init, method, likelihood, rays, bounces,
-                     max_iterations, ray_extrapolation, jacobian_sets)
+                     max_iterations, ray_extrapolation, jacobian_sets, mode)
 
 
 def _calibration_fit(files, out, detector, free, init, method, likelihood, rays, bounces,
                      max_iterations, ray_extrapolation: bool = True,
-                     jacobian_sets: int | None = None) -> None:
-    """``calibrate FILE... --out``: read the runs, fit with a live display, print the
-    table, save the result."""
+                     jacobian_sets: int | None = None, mode: str = "create") -> None:
+    """``calibrate FILE... --out``: check the options and --out, read the runs, fit with
+    a live display, print the table, save the result; a fit that did not converge
+    still writes its result, says so on stderr and exits with code 1."""
+    import numpy as np
     from rich.live import Live
 
     from .calibration import LIKELIHOODS, calibrate, free_layout, load_params
@@ -560,17 +584,7 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
     from .io.calibration_runs import open_runs
     from .transport.optics import TransportConfig
 
-    if out.suffix.lower() != ".json":
-        raise ConfigError(f"--out = {str(out)!r}: the calibration result is JSON (.json)")
-    if rays < 1:
-        raise ConfigError(f"--rays = {rays}: must be >= 1")
-    if bounces is not None and bounces < 0:
-        raise ConfigError(f"--bounces = {bounces}: must be >= 0")
-    if max_iterations < 1:
-        raise ConfigError(f"--max-iterations = {max_iterations}: must be >= 1")
-    if jacobian_sets is not None and jacobian_sets < 0:
-        raise ConfigError(f"--jacobian-sets = {jacobian_sets}: must be >= 0 (0: a fresh"
-                          " set every step)")
+    check_calibration_options(out, mode, rays, bounces, max_iterations, jacobian_sets)
     if likelihood not in LIKELIHOODS:
         raise ConfigError(f"--likelihood = {likelihood!r}: must be one of {', '.join(LIKELIHOODS)}")
     make_method(method)
@@ -593,12 +607,18 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
         )
         with Live(console=console(), refresh_per_second=4, transient=False) as live:
             live.update(f"compiling the expected mode of {len(files)} runs ...")
-            result = calibrate(
-                setup.detector, runs.runs, start, list(layout.names), method=method,
-                likelihood=likelihood, config=config, truth=runs.truth,
-                max_iterations=max_iterations, callback=_FitProgress(live),
-                ray_extrapolation=ray_extrapolation, **weight_sets,
-            )
+            try:
+                result = calibrate(
+                    setup.detector, runs.runs, start, list(layout.names), method=method,
+                    likelihood=likelihood, config=config, truth=runs.truth,
+                    max_iterations=max_iterations, callback=_FitProgress(live),
+                    ray_extrapolation=ray_extrapolation, **weight_sets,
+                )
+            except np.linalg.LinAlgError as error:  # a step's linear algebra broke down
+                raise ConfigError(
+                    f"--free = {free!r}: the fit broke down ({error}), its values running"
+                    " to the edge of their range; fix the values these runs do not"
+                    " constrain, add runs, or start elsewhere (--init)") from None
     console().print(calibration_rich_table(result))
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -608,6 +628,10 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
             f"--out = {str(out)!r}: cannot write ({error.strerror or error})"
         ) from None
     console().print(f"wrote {path} ({result.wall_time_s:.1f} s)", highlight=False)
+    if not result.converged:
+        sys.stderr.write(f"warning: the fit did not converge ({' '.join(result.message.split())});"
+                         f" {path} holds it with converged: false\n")
+        raise typer.Exit(code=EXIT_NOT_CONVERGED)
 
 
 def _calibration_report(report: Path, out: Path | None, detector: str | None) -> None:
@@ -622,6 +646,7 @@ def _calibration_report(report: Path, out: Path | None, detector: str | None) ->
     if out is None:
         raise ConfigError("--out: required with --report (the picture to write, e.g. .png)")
     check_picture_path(out)
+    check_output_file(out, "--out")
     result = CalibrationResult.load(report)
     name = result.detector.get("name")
     loaded = None
@@ -645,6 +670,7 @@ def demo(
     """Run the main job on the embedded default detectors and write its outputs."""
     from .demo import demo_steps, run_demo
 
+    check_output_folder(out_dir, "--out-dir")
     run_demo(out_dir, console(), demo_steps(with_fit=not skip_fit))
 
 
@@ -654,22 +680,27 @@ app.add_typer(benchmark_app, name="benchmark")
 
 
 @benchmark_app.command("transport")
+@guarded
 def benchmark_transport_command(
     detector: Annotated[str, typer.Option("--detector", "-d", help="Preset name.")] = "SK",
-    photons: Annotated[float, typer.Option(help="Photons of the isotropic source.")] = 1e6,
-    repeats: Annotated[int, typer.Option(help="Timed repetitions (median).")] = 5,
-    rays: Annotated[int | None, typer.Option(help="Rays for indirect light.")] = None,
-    bounces: Annotated[int, typer.Option(help="Bounces followed.")] = 2,
+    photons: Annotated[float, typer.Option(
+        help=f"Photons of the isotropic source, at most {MAX_PHOTONS:.0e}.")] = 1e6,
+    repeats: Annotated[int, typer.Option(
+        help=f"Timed repetitions (median), 1 to {MAX_REPEATS}.")] = 5,
+    rays: Annotated[int | None, typer.Option(
+        help=f"Rays for indirect light, 1 to {MAX_RAYS:,}.")] = None,
+    bounces: Annotated[int, typer.Option(help=f"Bounces followed, 0 to {MAX_BOUNCES}.")] = 2,
 ) -> None:
     """Expected-mode forward and value-and-gradient time, noise, peak memory and
     sampled-mode photons per second, for an isotropic source at the centre and 2 m
     from the barrel wall."""
     from .benchmarking import benchmark_transport, machine_description
+    from .config import load_setup
 
-    try:
-        rows = benchmark_transport(detector, photons, repeats, rays, bounces)
-    except PhotonflowError as error:
-        raise fail(str(error)) from None
+    check_benchmark_options(photons, repeats, rays, bounces)
+    load_setup(detector)  # an unknown detector is refused here, not in the child process
+    rows = benchmark_transport(detector, photons, repeats, rays, bounces,
+                               report=lambda line: console().print(line, highlight=False))
     table = Table(title=f"transport benchmark: {machine_description()}", title_justify="left")
     columns = [
         ("case", "case", "{}"), ("forward s", "forward_s", "{:.3f}"),
@@ -694,6 +725,7 @@ app.add_typer(tables_app, name="tables")
 
 
 @tables_app.command("build")
+@guarded
 def tables_build(
     particle: Annotated[str, typer.Option(help="mu-, mu+, e-, e+ or gamma.")],
     out: Annotated[Path, typer.Option(help="HDF5 file to write (resumed if it exists).")],
@@ -709,17 +741,20 @@ def tables_build(
 ) -> None:
     """Build an emission table (photons per particle by distance, angle and time offset
     along the initial direction) for an energy grid; resumes an interrupted build."""
+    from .errors import ConfigError
     from .generator import GeneratorSettings
     from .generator.emission_tables import DEFAULT_ENERGIES, build_table
 
+    grid = DEFAULT_ENERGIES if energies is None else _parse_floats(energies, "--energies")
+    check_output_file(out, "--out")
     try:
-        grid = DEFAULT_ENERGIES if energies is None else _parse_floats(energies, "--energies")
         table = build_table(
             particle, grid, per_energy, seed=seed, medium=medium,
             settings=GeneratorSettings(yield_scale=yield_scale), resume=out, progress=True,
         )
-    except PhotonflowError as error:
-        raise fail(str(error)) from None
+    except OSError as error:
+        raise ConfigError(f"--out = {str(out)!r}: cannot write ({error.strerror or error})"
+                          ) from None
     console().print(
         f"{out}: {particle} in {medium}, {len(table.energies)} energies x {per_energy},"
         f" {table.total_yield[-1]:.3g} photons at {table.energies[-1]:g} MeV"

@@ -21,6 +21,7 @@ import math
 import os
 import signal
 import sys
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -96,26 +97,32 @@ def _existing_ancestor(path: Path) -> Path:
     return parent
 
 
-def check_output_folder(path: Path, option: str) -> None:
+def check_output_folder(path: Path, option: str, given: Path | None = None) -> None:
     """Refuse, before any work, a folder that cannot be made or written: ``path`` is
-    an existing file, or its nearest existing ancestor is not a writable folder.
+    an existing file, or its nearest existing ancestor is not a folder in which a file
+    can be created (tried with a temporary file, removed at once). The message shows
+    ``given`` (default ``path``), the option's value.
 
     Raises:
-        ConfigError: one line naming ``option`` and the path.
+        ConfigError: one line naming ``option`` and its value.
     """
+    shown = f"{option} = {str(given if given is not None else path)!r}"
     if path.exists():
         if not path.is_dir():
-            raise ConfigError(f"{option} = {str(path)!r}: is a file, not a folder;"
-                              " name a folder (it is created if missing)")
+            raise ConfigError(f"{shown}: {path} is a file, not a folder; name a folder (it"
+                              " is created if missing)")
         folder = path
     else:
         folder = _existing_ancestor(path)
         if not folder.is_dir():
-            raise ConfigError(f"{option} = {str(path)!r}: cannot be created ({folder} is a"
-                              " file, not a folder)")
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise ConfigError(f"{option} = {str(path)!r}: cannot write in {folder} (permission"
-                          " denied)")
+            raise ConfigError(f"{shown}: cannot be created ({folder} is a file, not a"
+                              " folder)")
+    try:  # a test file: permissions alone miss read-only file systems, /proc, ...
+        with tempfile.TemporaryFile(dir=folder, prefix=".photonflow-write-test-"):
+            pass
+    except OSError as error:
+        raise ConfigError(f"{shown}: cannot write in {folder}"
+                          f" ({error.strerror or error})") from None
 
 
 def check_output_file(path: Path, option: str, *, overwrite: bool = True,
@@ -131,7 +138,7 @@ def check_output_file(path: Path, option: str, *, overwrite: bool = True,
         raise ConfigError(f"{option} = {str(path)!r}: is a folder; name a file")
     if path.exists() and not overwrite:
         raise ConfigError(f"{option} = {str(path)!r}: file exists" + _then(advice))
-    check_output_folder(path.absolute().parent, option)
+    check_output_folder(path.absolute().parent, option, given=path)
 
 
 def given(context, *names: str) -> list[str]:
@@ -215,6 +222,67 @@ def refuse_inapplicable_light(context, particle: str | None, source: str | None,
                   "only with --particle")
     for name in _UNUSED_BY_SOURCE.get(source or "isotropic", ()):
         refuse_unused(context, (name,), _SOURCE_ONLY[name])
+
+
+def check_benchmark_options(photons: float, repeats: int, rays: int | None,
+                            bounces: int) -> None:
+    """``benchmark transport``'s options within their limits (checked here, not in the
+    process that runs each case): --photons in (0, MAX_PHOTONS], --repeats in [1,
+    MAX_REPEATS], --rays in [1, MAX_RAYS], --bounces in [0, MAX_BOUNCES].
+
+    Raises:
+        ConfigError: one line naming the option, the value and the limit.
+    """
+    check_number("--photons", photons, MAX_PHOTONS)
+    check_count("--repeats", repeats, 1, MAX_REPEATS)
+    if rays is not None:
+        check_count("--rays", rays, 1, MAX_RAYS)
+    check_count("--bounces", bounces, 0, MAX_BOUNCES)
+
+
+#: ``calibrate``'s write modes (as ``simulate``'s, without append).
+CALIBRATION_MODES = ("create", "recreate")
+#: ``calibrate`` options that only a fit uses (not ``--report``).
+_FIT_OPTIONS = ("free", "init", "method", "likelihood", "rays", "bounces", "max_iterations",
+                "ray_extrapolation", "jacobian_sets", "mode")
+
+
+def check_calibration_options(out: Path, mode: str, rays: int, bounces: int | None,
+                              max_iterations: int, jacobian_sets: int | None) -> None:
+    """``calibrate``'s options, checked before any file is read or anything compiled:
+    --out a writable .json file that exists only with --mode recreate, --rays in
+    [MIN_CALIBRATION_RAYS, MAX_RAYS], --bounces in [0, MAX_BOUNCES], --max-iterations
+    >= 1, --jacobian-sets >= 0.
+
+    Raises:
+        ConfigError: one line naming the option, the value and what to do.
+    """
+    if out.suffix.lower() != ".json":
+        raise ConfigError(f"--out = {str(out)!r}: the calibration result is JSON (.json)")
+    if mode not in CALIBRATION_MODES:
+        raise ConfigError(f"--mode = {mode!r}: must be create (refuse to overwrite) or"
+                          " recreate (overwrite)")
+    check_output_file(out, "--out", overwrite=mode == "recreate",
+                      advice="use --mode recreate to overwrite it")
+    check_count("--rays", rays, MIN_CALIBRATION_RAYS, MAX_RAYS,
+                "fewer rays leave the indirect light mostly ray noise" if rays < 1 << 10
+                else "memory grows with the rays")
+    if bounces is not None:
+        check_count("--bounces", bounces, 0, MAX_BOUNCES)
+    if max_iterations < 1:
+        raise ConfigError(f"--max-iterations = {max_iterations}: must be >= 1")
+    if jacobian_sets is not None and jacobian_sets < 0:
+        raise ConfigError(f"--jacobian-sets = {jacobian_sets}: must be >= 0 (0: a fresh"
+                          " set every step)")
+
+
+def refuse_fit_options(context) -> None:
+    """Refuse ``calibrate --report`` with an option that only a fit uses.
+
+    Raises:
+        ConfigError: one line naming the first such option.
+    """
+    refuse_unused(context, _FIT_OPTIONS, "only for a fit, not with --report")
 
 
 def out_of_memory(error: BaseException) -> bool:
