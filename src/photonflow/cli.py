@@ -91,7 +91,8 @@ def command(function: F) -> F:
 
 def preset_rich_table() -> Table:
     """The detector presets as a rich table (name, shape, dimensions, sensors, coverage %,
-    sensor model, medium), from ``photonflow.geometry.preset_table``."""
+    sensor model, medium, source of the published figures), from
+    ``photonflow.geometry.preset_table``."""
     from .geometry.presets import preset_table
 
     table = Table(title="photonflow detector presets", title_justify="left")
@@ -102,6 +103,7 @@ def preset_rich_table() -> Table:
     table.add_column("coverage %", justify="right", no_wrap=True)
     table.add_column("sensor model", overflow="fold")
     table.add_column("medium", overflow="fold")
+    table.add_column("source", overflow="fold")
     for row in preset_table():
         coverage = row["coverage"]
         table.add_row(
@@ -112,14 +114,15 @@ def preset_rich_table() -> Table:
             "-" if math.isnan(coverage) else f"{100 * coverage:.1f}",
             str(row["sensor_model"]),
             str(row["medium"]),
+            str(row["source"]),
         )
     return table
 
 
-def console() -> Console:
-    """A rich console on stdout; 120 columns wide when stdout is not a terminal (pipes,
-    files), so that tables are not squeezed to the 80-column default."""
-    return Console() if sys.stdout.isatty() else Console(width=120)
+def console(width: int = 120) -> Console:
+    """A rich console on stdout; ``width`` columns wide when stdout is not a terminal
+    (pipes, files), so that tables are not squeezed to the 80-column default."""
+    return Console() if sys.stdout.isatty() else Console(width=width)
 
 
 def _version(show: bool) -> None:
@@ -143,7 +146,7 @@ def _main(
 @command
 def presets() -> None:
     """List the built-in detector presets."""
-    console().print(preset_rich_table())
+    console(width=200).print(preset_rich_table())
 
 
 @command
