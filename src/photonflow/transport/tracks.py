@@ -206,7 +206,7 @@ FIDUCIAL_MARGIN_SHARE = 0.25
 def default_fiducial_margin(detector: Detector) -> float:
     """The default ``fiducial_margin`` of ``random_tracks``, m: 2 m, or a quarter of the
     distance from the detector's centre to its nearest wall where that is less (0.5 m
-    in the 4 m toys, 0.34 m in WCTE, 0.26 m in TAO)."""
+    in the 4 m toys, 0.34 m in WCTE, 0.255 m in TAO)."""
     depth = float(np.asarray(detector.shape.distance_to_wall(np.zeros(3))))
     return min(DEFAULT_FIDUCIAL_MARGIN, FIDUCIAL_MARGIN_SHARE * depth)
 
