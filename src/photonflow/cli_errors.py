@@ -35,8 +35,9 @@ EXIT_NOT_CONVERGED = 1
 EXIT_INTERRUPTED = 130
 
 #: Most events of one ``simulate`` run (split larger productions into runs with
-#: different --seed).
-MAX_EVENTS = 10_000_000
+#: different --seed): the tracks of a particle run are drawn up front, about 1 kB and
+#: 60 us each.
+MAX_EVENTS = 1_000_000
 #: Most photons of one sampled event: photon-by-photon transport runs at about 1e6 to
 #: 1e7 photons per second on a laptop CPU, so 1e10 photons take hours per event.
 MAX_PHOTONS = 1e10
