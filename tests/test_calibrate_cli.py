@@ -209,6 +209,10 @@ def test_file_without_run_settings_is_refused(tmp_path):
         (["--likelihood", "time"], "--likelihood"),
         (["--rays", "0"], "--rays"),
         (["--jacobian-sets", "-1"], "--jacobian-sets = -1"),
+        (["--rays", "1"], "--rays = 1: must be >= 32"),
+        (["--rays", "100000000000"], "--rays = 100000000000: must be <= 1,048,576"),
+        (["--bounces", "101"], "--bounces = 101: must be <= 100"),
+        (["--mode", "append"], "--mode = 'append'"),
     ],
 )
 def test_bad_options_are_one_line(run_file, tmp_path, args, fragment):
@@ -223,4 +227,69 @@ def test_report_of_a_missing_result_is_one_line(tmp_path):
     result = invoke("calibrate", "--report", tmp_path / "none.json", "--out",
                     tmp_path / "r.png")
     assert_one_line_error(result, "none.json")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_existing_result_is_refused_before_the_fit_unless_recreate(run_file, tmp_path):
+    """--out is checked first: an existing result is refused even before the (missing)
+    run file is opened; --mode recreate overwrites it."""
+    out = tmp_path / "calib.json"
+    out.write_text("{}")
+    result = invoke("calibrate", tmp_path / "missing.h5", "--free", "quantum_efficiency",
+                    "--out", out)
+    assert_one_line_error(result, "--out", "calib.json", "file exists", "--mode recreate")
+    assert out.read_text() == "{}"
+    result = invoke("calibrate", run_file, "--detector", "TOY_CYLINDER", "--free",
+                    "quantum_efficiency", "--rays", "512", "--max-iterations", "3",
+                    "--out", out, "--mode", "recreate")
+    assert result.exit_code == 0, result.output
+    assert CalibrationResult.load(out).free == ("quantum_efficiency",)
+
+
+def test_a_fit_with_an_infinite_error_is_not_converged(run_file, tmp_path, monkeypatch):
+    """A fitted value without a finite error (here forced to inf) is no measurement: the
+    result says converged: false, the table and stderr say so, the exit code is 1, and
+    the file is valid JSON ("inf" as a string) that loads back with the inf."""
+    from photonflow.calibration import fit
+
+    real = fit._physical_errors
+
+    def infinite_errors(problem, theta, curvature):
+        errors, correlation = real(problem, theta, curvature)
+        return errors.replace(quantum_efficiency=np.inf), correlation
+
+    monkeypatch.setattr(fit, "_physical_errors", infinite_errors)
+    out = tmp_path / "calib.json"
+    result = invoke("calibrate", run_file, "--detector", "TOY_CYLINDER", "--free",
+                    "quantum_efficiency", "--rays", "512", "--max-iterations", "3",
+                    "--out", out)
+    assert result.exit_code == 1, result.output
+    assert "not converged" in result.stdout and "no measurement" in result.stdout
+    warning = result.stderr.strip().splitlines()
+    assert len(warning) == 1 and warning[0].startswith("warning: the fit did not converge")
+
+    def refuse(constant):
+        raise AssertionError(f"{constant} is not JSON")
+
+    data = json.loads(out.read_text(), parse_constant=refuse)
+    assert data["converged"] is False and data["errors"]["quantum_efficiency"] == "inf"
+    loaded = CalibrationResult.load(out)
+    assert not loaded.converged and np.isinf(float(loaded.errors.quantum_efficiency))
+
+
+@pytest.mark.parametrize("option", ["--report", "--init"])
+def test_a_result_without_params_is_one_line(run_file, tmp_path, option):
+    bare = tmp_path / "bare.json"
+    bare.write_text(json.dumps({"format": "photonflow-calibration", "version": 1}))
+    out = tmp_path / ("r.png" if option == "--report" else "calib.json")
+    args = ([] if option == "--report" else [run_file, "--free", "quantum_efficiency"])
+    result = invoke("calibrate", *args, option, bare, "--out", out)
+    assert_one_line_error(result, "bare.json", "'params' is missing")
+    assert not out.exists()
+
+
+def test_report_refuses_the_options_of_a_fit(fitted, tmp_path):
+    out, _ = fitted
+    result = invoke("calibrate", "--report", out, "--rays", "64", "--out", tmp_path / "r.png")
+    assert_one_line_error(result, "--rays = 64", "not with --report")
     assert list(tmp_path.iterdir()) == []

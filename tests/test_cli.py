@@ -46,6 +46,7 @@ def test_presets_lists_every_preset(tmp_path):
         assert name in result.stdout
     sk_row = next(line for line in result.stdout.splitlines() if " SK " in line)
     assert "11146" in sk_row and "40.3" in sk_row
+    assert "source" in result.stdout and "WCSim; SK site" in sk_row  # the README's column
 
 
 def test_geometry_writes_a_png(tmp_path):
@@ -120,8 +121,8 @@ def test_readme_starts_with_set_up_and_its_preset_table_matches_the_presets():
     for row in preset_table():
         coverage = "-" if math.isnan(row["coverage"]) else f"{100 * row['coverage']:.1f}"
         expected = [row["name"], row["shape"], row["dimensions"], str(row["sensors"]), coverage,
-                    row["sensor_model"], row["medium"]]
-        assert rows[row["name"]][:7] == expected
+                    row["sensor_model"], row["medium"], row["source"]]
+        assert rows[row["name"]] == expected
 
 
 def test_simulate_then_info_and_display(tmp_path):

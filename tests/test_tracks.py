@@ -199,6 +199,46 @@ def test_spectrum_quantiles_and_bad_spectra():
             parse_spectrum(bad)
 
 
+@pytest.mark.parametrize("gamma", [1e6, -1e6, 1e300, -1e300, 40.0, -40.0, 1.0 + 1e-12])
+def test_steep_spectra_stay_in_range(gamma):
+    """Any finite index gives energies in [low, high], rising with the quantile, piled at
+    ``low`` for gamma >> 1 and at ``high`` for gamma << 0 (power:1e6 was a
+    ZeroDivisionError, power:-1e6 an OverflowError)."""
+    low, high = 100.0, 1000.0
+    energies = [spectrum_energy(q, low, high, gamma) for q in (0.0, 1e-300, 0.1, 0.5, 0.999)]
+    assert all(math.isfinite(e) and low <= e <= high for e in energies)
+    assert energies == sorted(energies)
+    if abs(gamma) >= 1e6:
+        assert energies[3] == pytest.approx(low if gamma > 0 else high, rel=1e-3)
+
+
+def test_steep_spectra_agree_with_the_closed_form():
+    rng = np.random.default_rng(3)
+    for q, low, span, gamma in zip(rng.random(200), rng.uniform(1, 100, 200),
+                                   rng.uniform(1.1, 100, 200), rng.uniform(-4, 4, 200),
+                                   strict=True):
+        power = 1.0 - gamma
+        high = low * span
+        closed = (low**power + q * (high**power - low**power)) ** (1.0 / power)
+        assert spectrum_energy(q, low, high, gamma) == pytest.approx(closed, rel=1e-9)
+
+
+def test_default_fiducial_margin_scales_with_the_detector():
+    """2 m in the large tanks, a quarter of the centre-to-wall distance in small ones,
+    so that the default leaves a fiducial volume in every preset."""
+    from photonflow.transport.tracks import default_fiducial_margin
+
+    margins = {name: default_fiducial_margin(pf.load_detector(name)) for name in pf.presets()}
+    assert margins["SK"] == margins["HK"] == 2.0
+    assert margins["TOY_CYLINDER"] == pytest.approx(0.5)
+    assert margins["WCTE"] == pytest.approx(0.34, abs=0.005)
+    for name, margin in margins.items():
+        detector = pf.load_detector(name)
+        depth = float(detector.shape.distance_to_wall(np.zeros(3)))
+        assert margin == pytest.approx(min(2.0, 0.25 * depth)) and margin < depth, name
+        random_tracks(detector, "mu-", 100.0, 0, 2)  # the default leaves a fiducial volume
+
+
 def test_track_events_round_trip_through_an_event_file(tmp_path):
     detector = pf.load_detector("TOY_CYLINDER")
     params = pf.default_params(detector)

@@ -22,7 +22,8 @@ from .transport import TransportConfig, expected, sample, sample_events
 def presets() -> dict[str, dict[str, object]]:
     """The detector presets: name -> row with ``shape``, ``dimensions`` (text, m),
     ``sensors`` (count), ``coverage`` (photocathode fraction of the wall, nan for an
-    open medium), ``sensor_model`` and ``medium``. Iterating gives the names."""
+    open medium), ``sensor_model``, ``medium`` and ``source`` (where the published
+    figures it reproduces come from). Iterating gives the names."""
     return {row["name"]: row for row in preset_table()}
 
 

@@ -16,6 +16,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .errors import ConfigError
+
 #: Case name -> where the isotropic source sits (fraction of the barrel radius or m).
 TRANSPORT_CASES = ("centre", "2 m from barrel")
 
@@ -102,20 +104,35 @@ def transport_case(detector_name: str, case: str, photons: float, repeats: int,
 
 
 def benchmark_transport(detector_name: str = "SK", photons: float = 1e6, repeats: int = 5,
-                        n_rays: int | None = None, n_bounces: int = 2) -> list[dict]:
-    """Run every transport case in its own process; one result row per case."""
+                        n_rays: int | None = None, n_bounces: int = 2,
+                        report: Callable[[str], None] | None = None) -> list[dict]:
+    """Run every transport case in its own process; one result row per case (times s,
+    memory MB). ``report`` is called with a line before each case starts.
+
+    Raises:
+        ConfigError: a case's process failed (its last line of output, one line).
+    """
     from .transport.optics import TransportConfig
 
     n_rays = TransportConfig().n_rays if n_rays is None else n_rays
     rows = []
-    for case in TRANSPORT_CASES:
+    for number, case in enumerate(TRANSPORT_CASES, start=1):
+        if report is not None:
+            report(f"case {number} of {len(TRANSPORT_CASES)}: {detector_name}, {case}"
+                   f" ({photons:g} photons, {n_rays} rays, {n_bounces} bounces, {repeats}"
+                   " repeats, in a fresh process) ...")
         code = (
             "import json; from photonflow.benchmarking import transport_case;"
             f"print(json.dumps(transport_case({detector_name!r}, {case!r}, {photons!r},"
             f" {repeats!r}, {n_rays!r}, {n_bounces!r})))"
         )
-        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                              check=True)
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        if done.returncode != 0:
+            lines = [line.strip() for line in done.stderr.splitlines() if line.strip()]
+            raise ConfigError(
+                f"benchmark case {case!r} of {detector_name!r} failed in its process (exit"
+                f" {done.returncode}): {lines[-1] if lines else 'no message'}"
+            )
         row = json.loads(done.stdout.strip().splitlines()[-1])
         rows.append({"detector": detector_name, "case": case, "photons": photons,
                      "n_rays": n_rays, "n_bounces": n_bounces, **row})

@@ -8,7 +8,6 @@ nothing behind.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import math
 import sys
@@ -21,10 +20,30 @@ from rich.console import Console
 from rich.table import Table
 
 from . import __version__
+from .cli_errors import (
+    EXIT_BAD_INPUT,
+    EXIT_INTERRUPTED,
+    EXIT_NOT_CONVERGED,
+    MAX_BOUNCES,
+    MAX_EVENTS,
+    MAX_PHOTONS,
+    MAX_RAYS,
+    MAX_REPEATS,
+    MIN_CALIBRATION_RAYS,
+    check_benchmark_options,
+    check_calibration_options,
+    check_output_file,
+    check_output_folder,
+    check_simulate_counts,
+    error_line,
+    out_of_memory,
+    refuse_fit_options,
+    refuse_inapplicable_light,
+)
 from .errors import PhotonflowError
+from .interrupts import terminate_as_interrupt
 
-#: Exit code of a command given bad input (the same as a command-line usage error).
-EXIT_BAD_INPUT = 2
+__all__ = ["app", "main", "terminate_as_interrupt"]
 
 app = typer.Typer(
     name="photonflow",
@@ -38,13 +57,14 @@ F = TypeVar("F", bound=Callable)
 
 def fail(message: str) -> typer.Exit:
     """Print ``error: <message>`` as one line on stderr; return the exit to raise (code 2)."""
-    sys.stderr.write(f"error: {' '.join(message.split())}\n")
-    sys.stderr.flush()
+    error_line(message)
     return typer.Exit(code=EXIT_BAD_INPUT)
 
 
-def command(function: F) -> F:
-    """Register ``function`` as a sub-command that turns ``PhotonflowError`` into exit 2."""
+def guarded(function: F) -> F:
+    """``function`` with bad input (any ``PhotonflowError``) and running out of memory
+    reported as one ``error:`` line and exit code 2, and an interrupt ending in exit
+    code 130."""
 
     @functools.wraps(function)
     def run(*args, **kwargs):
@@ -52,14 +72,27 @@ def command(function: F) -> F:
             return function(*args, **kwargs)
         except PhotonflowError as error:
             raise fail(str(error)) from None
+        except KeyboardInterrupt:  # the console entry says "interrupted"
+            raise typer.Exit(code=EXIT_INTERRUPTED) from None
+        except Exception as error:
+            if not out_of_memory(error):
+                raise
+            raise fail(f"out of memory ({type(error).__name__}); ask for less: fewer"
+                       " --events, --photons or --rays") from None
 
-    app.command()(run)
+    return run
+
+
+def command(function: F) -> F:
+    """Register ``function`` as a sub-command of ``photonflow`` (``guarded``)."""
+    app.command()(guarded(function))
     return function
 
 
 def preset_rich_table() -> Table:
     """The detector presets as a rich table (name, shape, dimensions, sensors, coverage %,
-    sensor model, medium), from ``photonflow.geometry.preset_table``."""
+    sensor model, medium, source of the published figures), from
+    ``photonflow.geometry.preset_table``."""
     from .geometry.presets import preset_table
 
     table = Table(title="photonflow detector presets", title_justify="left")
@@ -70,6 +103,7 @@ def preset_rich_table() -> Table:
     table.add_column("coverage %", justify="right", no_wrap=True)
     table.add_column("sensor model", overflow="fold")
     table.add_column("medium", overflow="fold")
+    table.add_column("source", overflow="fold")
     for row in preset_table():
         coverage = row["coverage"]
         table.add_row(
@@ -80,14 +114,15 @@ def preset_rich_table() -> Table:
             "-" if math.isnan(coverage) else f"{100 * coverage:.1f}",
             str(row["sensor_model"]),
             str(row["medium"]),
+            str(row["source"]),
         )
     return table
 
 
-def console() -> Console:
-    """A rich console on stdout; 120 columns wide when stdout is not a terminal (pipes,
-    files), so that tables are not squeezed to the 80-column default."""
-    return Console() if sys.stdout.isatty() else Console(width=120)
+def console(width: int = 120) -> Console:
+    """A rich console on stdout; ``width`` columns wide when stdout is not a terminal
+    (pipes, files), so that tables are not squeezed to the 80-column default."""
+    return Console() if sys.stdout.isatty() else Console(width=width)
 
 
 def _version(show: bool) -> None:
@@ -111,7 +146,7 @@ def _main(
 @command
 def presets() -> None:
     """List the built-in detector presets."""
-    console().print(preset_rich_table())
+    console(width=200).print(preset_rich_table())
 
 
 @command
@@ -130,6 +165,7 @@ def geometry(
 
     if out is not None:
         check_picture_path(out)
+        check_output_file(out, "--out")
     loaded = load_detector(detector)
     path = out if out is not None else Path(f"geometry_{loaded.name}.png")
     plot_detector(loaded, path)
@@ -207,10 +243,10 @@ def track_sources(detector, particle, energy, energy_range, vertex, direction, m
     """The per-event ``Track``s of ``simulate --particle`` (``random_tracks``), with
     one-line errors naming the option, and the settings that make them (a JSON-able
     dict: particle, energy MeV or [low, high], spectrum, vertex, direction,
-    fiducial_margin m)."""
+    fiducial_margin m; ``margin`` None: ``default_fiducial_margin``)."""
     from .errors import ConfigError
     from .generator.particles import PARTICLES
-    from .transport.tracks import random_tracks
+    from .transport.tracks import default_fiducial_margin, random_tracks
 
     if particle not in PARTICLES:
         raise ConfigError(f"--particle = {particle!r}: must be one of {', '.join(PARTICLES)}")
@@ -221,6 +257,8 @@ def track_sources(detector, particle, energy, energy_range, vertex, direction, m
         vertex = point
     if direction != "isotropic":
         direction = parse_unit_vector(direction, "--direction")
+    if margin is None:
+        margin = default_fiducial_margin(detector)
     if not (math.isfinite(margin) and margin >= 0):
         raise ConfigError(f"--fiducial-margin = {margin:g}: must be >= 0 m")
     energies = parse_energies(energy, energy_range, spectrum)
@@ -247,42 +285,28 @@ def source_settings(source) -> dict:
     return {"source": type(source).__name__, **fields}
 
 
-def interrupted(writer, events: int) -> typer.Exit:
-    """Report an interrupted ``simulate`` in one line; return the exit to raise (130)."""
+def interrupted(writer, events: int, interrupts) -> typer.Exit:
+    """Report an interrupted ``simulate`` in one line (marking ``interrupts`` reported);
+    return the exit to raise (130: ``main`` then leaves at once,
+    ``cli_errors.run_console``)."""
     from .io.writer import checkpoint_path
 
     done = writer.n_run_events
     kept = checkpoint_path(writer.path)
-    advice = (
-        f"{kept.name} keeps them: run the same command with --resume to finish"
-        if done and kept.exists() else "nothing kept"
-    )
+    if done and kept.exists():
+        advice = f"{kept.name} keeps them: run the same command with --resume to finish"
+    elif done == events and writer.path.exists():
+        advice = f"{writer.path.name} was already complete"
+    else:
+        advice = "nothing kept"
     sys.stderr.write(f"interrupted after {done} of {events} events; {advice}\n")
-    return typer.Exit(code=130)
-
-
-@contextlib.contextmanager
-def terminate_as_interrupt():
-    """Within the block, SIGTERM (``kill``) raises ``KeyboardInterrupt`` like Ctrl-C,
-    so that an interrupted write keeps its checkpoint."""
-    import signal
-
-    def handler(signum, frame):
-        raise KeyboardInterrupt
-
-    try:
-        previous = signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread: leave SIGTERM alone
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    interrupts.reported = True
+    return typer.Exit(code=EXIT_INTERRUPTED)
 
 
 @command
 def simulate(
+    context: typer.Context,
     out: Annotated[Path, typer.Option("--out", "-o", help="Event file to write (HDF5).")],
     detector: Annotated[str, typer.Option(
         "--detector", "-d", help="Preset name or configuration file.")] = "SK",
@@ -299,8 +323,10 @@ def simulate(
              " (dN/dE ~ E^-GAMMA; 1 = log-uniform).")] = None,
     vertex: Annotated[str, typer.Option(
         help="Track start: uniform-fiducial or x,y,z in m.")] = "uniform-fiducial",
-    fiducial_margin: Annotated[float, typer.Option(
-        "--fiducial-margin", help="Fiducial volume: this far (m) from every wall.")] = 2.0,
+    fiducial_margin: Annotated[float | None, typer.Option(
+        "--fiducial-margin", help="Fiducial volume for uniform-fiducial vertices: this far"
+             " (m) from every wall. Default: 2 m, or a quarter of the distance from the"
+             " centre to the nearest wall where that is less (0.5 m in the 4 m toys).")] = None,
     position: Annotated[str, typer.Option(help="Source position x,y,z in m.")] = "0,0,0",
     direction: Annotated[str | None, typer.Option(
         help="Laser/diffuser axis x,y,z, or track direction: isotropic (default for"
@@ -308,17 +334,20 @@ def simulate(
     opening_angle: Annotated[float | None, typer.Option(
         "--opening-angle", help="Laser cone half-angle, rad.")] = None,
     anisotropy: Annotated[float, typer.Option(help="Diffuser anisotropy a in [-1, 1].")] = 0.0,
-    photons: Annotated[float, typer.Option(help="Photons per pulse.")] = 1e6,
+    photons: Annotated[float, typer.Option(
+        help=f"Photons per pulse, at most {MAX_PHOTONS:.0e}.")] = 1e6,
     pulse_width: Annotated[float, typer.Option(
         "--pulse-width", help="Source pulse width (Gaussian sigma), ns.")] = 0.0,
-    events: Annotated[int, typer.Option(help="Number of events (pulses or tracks).")] = 1,
+    events: Annotated[int, typer.Option(
+        help=f"Number of events (pulses or tracks), 1 to {MAX_EVENTS:,}.")] = 1,
     seed: Annotated[int, typer.Option(help="Random seed (same seed, same events).")] = 0,
     bounces: Annotated[int, typer.Option(
-        help="Scatterings/reflections followed per photon.")] = 2,
+        help=f"Scatterings/reflections followed per photon, 0 to {MAX_BOUNCES}.")] = 2,
     mode: Annotated[str, typer.Option(
         help="create (refuse to overwrite), recreate or append.")] = "create",
     workers: Annotated[int | None, typer.Option(
-        help="Run on a local Dask cluster of this many worker processes.")] = None,
+        help="Run on a local Dask cluster of this many worker processes (at most 4 per"
+             " CPU core).")] = None,
     scheduler: Annotated[str | None, typer.Option(
         help="Run on the existing Dask cluster whose scheduler is at this address"
              " (e.g. tcp://host:8786).")] = None,
@@ -340,16 +369,12 @@ def simulate(
     from .transport.optics import TransportConfig
     from .transport.production import produce_events
 
-    if events < 1:
-        raise ConfigError(f"--events = {events}: must be >= 1")
-    if bounces < 0:
-        raise ConfigError(f"--bounces = {bounces}: must be >= 0")
+    check_simulate_counts(events, bounces, workers, photons)
     if particle is not None and source is not None:
         raise ConfigError(f"--source = {source!r}: not with --particle (choose one)")
     if workers is not None and scheduler is not None:
         raise ConfigError(f"--scheduler = {scheduler!r}: not with --workers (choose one)")
-    if workers is not None and workers < 1:
-        raise ConfigError(f"--workers = {workers}: must be >= 1")
+    refuse_inapplicable_light(context, particle, source, vertex)
     setup = load_setup(detector)
     if particle is not None:
         light, settings = track_sources(
@@ -369,18 +394,23 @@ def simulate(
                     photonflow_version=__version__)
     writer = EventWriter(out, setup.detector, setup.params, mode=mode, chunk_events=100,
                          run=settings, resume=resume)
-    with terminate_as_interrupt():
+    produced = None
+    with terminate_as_interrupt() as interrupts:
         try:
             with writer:
                 done = writer.n_run_events
-                writer.extend(produce_events(
+                produced = produce_events(
                     setup.detector, setup.params,
                     light[done:] if particle is not None else light, seed, events - done,
                     first_event=done, config=TransportConfig(n_bounces=bounces),
                     medium=setup.medium, workers=workers, scheduler=scheduler, progress=True,
-                ))
+                )
+                writer.extend(interrupts.checked(produced))
+                interrupts.check()  # one whose exception was lost: keep, do not commit
         except KeyboardInterrupt:
-            raise interrupted(writer, events) from None
+            if hasattr(produced, "close"):
+                produced.close()  # stops a local Dask cluster now, not at exit
+            raise interrupted(writer, events, interrupts) from None
     console().print(
         f"wrote {events} events to {writer.path} ({setup.detector.describe()})"
         + (f", resumed at event {done}" if resume else ""),
@@ -403,6 +433,7 @@ def display(
 
     if out is not None:
         check_picture_path(out)
+        check_output_file(out, "--out")
     with read_events(path) as events:
         if not -len(events) <= event < len(events):
             held = f"events 0..{len(events) - 1}" if len(events) else "no events"
@@ -422,9 +453,12 @@ def calibration_rich_table(result) -> Table:
     from .params import SPECS
 
     truth = result.truth
-    pulls = result.pulls() if truth is not None else {}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pulls = result.pulls() if truth is not None else {}
+    status = "" if result.converged or result.message.startswith("not converged") else (
+        "not converged: ")
     table = Table(title=f"calibration ({result.method}, {result.likelihood} likelihood):"
-                        f" {result.message}", title_justify="left")
+                        f" {status}{result.message}", title_justify="left")
     for title in ("parameter", "fitted", "error", "true", "pull"):
         table.add_column(title, justify="left" if title == "parameter" else "right")
     for name in result.free:
@@ -447,7 +481,8 @@ def calibration_rich_table(result) -> Table:
         for k in range(fitted.size):
             label = f"{name}[{k}]" if spec.size else name
             table.add_row(
-                label + unit, f"{fitted[k]:.5g}", f"{error[k]:.3g}",
+                label + unit, f"{fitted[k]:.5g}",
+                f"{error[k]:.3g}" if np.isfinite(error[k]) else f"{error[k]} (no measurement)",
                 "-" if true is None else f"{true[k]:.5g}",
                 "-" if pull is None else f"{pull[k]:+.2f}",
             )
@@ -473,6 +508,7 @@ class _FitProgress:
 
 @command
 def calibrate(
+    context: typer.Context,
     files: Annotated[list[Path] | None, typer.Argument(
         metavar="FILE...", help="Event files of calibration runs (photonflow simulate),"
                                 " one run each.")] = None,
@@ -490,9 +526,11 @@ def calibrate(
     method: Annotated[str, typer.Option(help="gauss-newton, lbfgs or adam.")] = "gauss-newton",
     likelihood: Annotated[str, typer.Option(help="charge or charge+time.")] = "charge",
     rays: Annotated[int, typer.Option(
-        help="Rays per source for the expected mode's indirect light.")] = 4096,
+        help=f"Rays per source for the expected mode's indirect light,"
+             f" {MIN_CALIBRATION_RAYS} to {MAX_RAYS:,}.")] = 4096,
     bounces: Annotated[int | None, typer.Option(
-        help="Scatterings/reflections followed (default: the files' 'bounces').")] = None,
+        help=f"Scatterings/reflections followed, 0 to {MAX_BOUNCES} (default: the files'"
+             " 'bounces').")] = None,
     max_iterations: Annotated[int, typer.Option(
         "--max-iterations", help="Iteration limit.")] = 50,
     report: Annotated[Path | None, typer.Option(
@@ -506,6 +544,9 @@ def calibrate(
         help="Average the independent-ray score's weights over this many ray sets, once"
              " (default: calibrate()'s, 4); 0: a fresh set every step"
              " (docs/calibration.md).")] = None,
+    mode: Annotated[str, typer.Option(
+        help="create (refuse to overwrite an existing --out, checked before the fit) or"
+             " recreate.")] = "create",
 ) -> None:
     """Fit detector parameters (absorption and scattering lengths, reflectivities,
     per-sensor efficiency and time offset, ...) to calibration runs and write the result
@@ -516,6 +557,7 @@ def calibrate(
     if report is not None:
         if files:
             raise ConfigError(f"FILE = {str(files[0])!r}: not with --report (choose one)")
+        refuse_fit_options(context)
         _calibration_report(report, out, detector)
         return
     if out is None:
@@ -525,14 +567,16 @@ def calibrate(
     if not files:
         raise ConfigError("FILE: give at least one event file of a calibration run")
     _calibration_fit(files, out, detector, free, init, method, likelihood, rays, bounces,
-                     max_iterations, ray_extrapolation, jacobian_sets)
+                     max_iterations, ray_extrapolation, jacobian_sets, mode)
 
 
 def _calibration_fit(files, out, detector, free, init, method, likelihood, rays, bounces,
                      max_iterations, ray_extrapolation: bool = True,
-                     jacobian_sets: int | None = None) -> None:
-    """``calibrate FILE... --out``: read the runs, fit with a live display, print the
-    table, save the result."""
+                     jacobian_sets: int | None = None, mode: str = "create") -> None:
+    """``calibrate FILE... --out``: check the options and --out, read the runs, fit with
+    a live display, print the table, save the result; a fit that did not converge
+    still writes its result, says so on stderr and exits with code 1."""
+    import numpy as np
     from rich.live import Live
 
     from .calibration import LIKELIHOODS, calibrate, free_layout, load_params
@@ -543,17 +587,7 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
     from .io.calibration_runs import open_runs
     from .transport.optics import TransportConfig
 
-    if out.suffix.lower() != ".json":
-        raise ConfigError(f"--out = {str(out)!r}: the calibration result is JSON (.json)")
-    if rays < 1:
-        raise ConfigError(f"--rays = {rays}: must be >= 1")
-    if bounces is not None and bounces < 0:
-        raise ConfigError(f"--bounces = {bounces}: must be >= 0")
-    if max_iterations < 1:
-        raise ConfigError(f"--max-iterations = {max_iterations}: must be >= 1")
-    if jacobian_sets is not None and jacobian_sets < 0:
-        raise ConfigError(f"--jacobian-sets = {jacobian_sets}: must be >= 0 (0: a fresh"
-                          " set every step)")
+    check_calibration_options(out, mode, rays, bounces, max_iterations, jacobian_sets)
     if likelihood not in LIKELIHOODS:
         raise ConfigError(f"--likelihood = {likelihood!r}: must be one of {', '.join(LIKELIHOODS)}")
     make_method(method)
@@ -576,12 +610,18 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
         )
         with Live(console=console(), refresh_per_second=4, transient=False) as live:
             live.update(f"compiling the expected mode of {len(files)} runs ...")
-            result = calibrate(
-                setup.detector, runs.runs, start, list(layout.names), method=method,
-                likelihood=likelihood, config=config, truth=runs.truth,
-                max_iterations=max_iterations, callback=_FitProgress(live),
-                ray_extrapolation=ray_extrapolation, **weight_sets,
-            )
+            try:
+                result = calibrate(
+                    setup.detector, runs.runs, start, list(layout.names), method=method,
+                    likelihood=likelihood, config=config, truth=runs.truth,
+                    max_iterations=max_iterations, callback=_FitProgress(live),
+                    ray_extrapolation=ray_extrapolation, **weight_sets,
+                )
+            except np.linalg.LinAlgError as error:  # a step's linear algebra broke down
+                raise ConfigError(
+                    f"--free = {free!r}: the fit broke down ({error}), its values running"
+                    " to the edge of their range; fix the values these runs do not"
+                    " constrain, add runs, or start elsewhere (--init)") from None
     console().print(calibration_rich_table(result))
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -591,6 +631,10 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
             f"--out = {str(out)!r}: cannot write ({error.strerror or error})"
         ) from None
     console().print(f"wrote {path} ({result.wall_time_s:.1f} s)", highlight=False)
+    if not result.converged:
+        sys.stderr.write(f"warning: the fit did not converge ({' '.join(result.message.split())});"
+                         f" {path} holds it with converged: false\n")
+        raise typer.Exit(code=EXIT_NOT_CONVERGED)
 
 
 def _calibration_report(report: Path, out: Path | None, detector: str | None) -> None:
@@ -605,6 +649,7 @@ def _calibration_report(report: Path, out: Path | None, detector: str | None) ->
     if out is None:
         raise ConfigError("--out: required with --report (the picture to write, e.g. .png)")
     check_picture_path(out)
+    check_output_file(out, "--out")
     result = CalibrationResult.load(report)
     name = result.detector.get("name")
     loaded = None
@@ -628,6 +673,7 @@ def demo(
     """Run the main job on the embedded default detectors and write its outputs."""
     from .demo import demo_steps, run_demo
 
+    check_output_folder(out_dir, "--out-dir")
     run_demo(out_dir, console(), demo_steps(with_fit=not skip_fit))
 
 
@@ -637,22 +683,27 @@ app.add_typer(benchmark_app, name="benchmark")
 
 
 @benchmark_app.command("transport")
+@guarded
 def benchmark_transport_command(
     detector: Annotated[str, typer.Option("--detector", "-d", help="Preset name.")] = "SK",
-    photons: Annotated[float, typer.Option(help="Photons of the isotropic source.")] = 1e6,
-    repeats: Annotated[int, typer.Option(help="Timed repetitions (median).")] = 5,
-    rays: Annotated[int | None, typer.Option(help="Rays for indirect light.")] = None,
-    bounces: Annotated[int, typer.Option(help="Bounces followed.")] = 2,
+    photons: Annotated[float, typer.Option(
+        help=f"Photons of the isotropic source, at most {MAX_PHOTONS:.0e}.")] = 1e6,
+    repeats: Annotated[int, typer.Option(
+        help=f"Timed repetitions (median), 1 to {MAX_REPEATS}.")] = 5,
+    rays: Annotated[int | None, typer.Option(
+        help=f"Rays for indirect light, 1 to {MAX_RAYS:,}.")] = None,
+    bounces: Annotated[int, typer.Option(help=f"Bounces followed, 0 to {MAX_BOUNCES}.")] = 2,
 ) -> None:
     """Expected-mode forward and value-and-gradient time, noise, peak memory and
     sampled-mode photons per second, for an isotropic source at the centre and 2 m
     from the barrel wall."""
     from .benchmarking import benchmark_transport, machine_description
+    from .config import load_setup
 
-    try:
-        rows = benchmark_transport(detector, photons, repeats, rays, bounces)
-    except PhotonflowError as error:
-        raise fail(str(error)) from None
+    check_benchmark_options(photons, repeats, rays, bounces)
+    load_setup(detector)  # an unknown detector is refused here, not in the child process
+    rows = benchmark_transport(detector, photons, repeats, rays, bounces,
+                               report=lambda line: console().print(line, highlight=False))
     table = Table(title=f"transport benchmark: {machine_description()}", title_justify="left")
     columns = [
         ("case", "case", "{}"), ("forward s", "forward_s", "{:.3f}"),
@@ -677,6 +728,7 @@ app.add_typer(tables_app, name="tables")
 
 
 @tables_app.command("build")
+@guarded
 def tables_build(
     particle: Annotated[str, typer.Option(help="mu-, mu+, e-, e+ or gamma.")],
     out: Annotated[Path, typer.Option(help="HDF5 file to write (resumed if it exists).")],
@@ -692,17 +744,20 @@ def tables_build(
 ) -> None:
     """Build an emission table (photons per particle by distance, angle and time offset
     along the initial direction) for an energy grid; resumes an interrupted build."""
+    from .errors import ConfigError
     from .generator import GeneratorSettings
     from .generator.emission_tables import DEFAULT_ENERGIES, build_table
 
+    grid = DEFAULT_ENERGIES if energies is None else _parse_floats(energies, "--energies")
+    check_output_file(out, "--out")
     try:
-        grid = DEFAULT_ENERGIES if energies is None else _parse_floats(energies, "--energies")
         table = build_table(
             particle, grid, per_energy, seed=seed, medium=medium,
             settings=GeneratorSettings(yield_scale=yield_scale), resume=out, progress=True,
         )
-    except PhotonflowError as error:
-        raise fail(str(error)) from None
+    except OSError as error:
+        raise ConfigError(f"--out = {str(out)!r}: cannot write ({error.strerror or error})"
+                          ) from None
     console().print(
         f"{out}: {particle} in {medium}, {len(table.energies)} energies x {per_energy},"
         f" {table.total_yield[-1]:.3g} photons at {table.energies[-1]:g} MeV"
@@ -720,5 +775,8 @@ def _parse_floats(text: str, option: str) -> tuple[float, ...]:
 
 
 def main() -> None:
-    """Entry point of the ``photonflow`` console script and ``python -m photonflow``."""
-    app(prog_name="photonflow")
+    """Entry point of the ``photonflow`` console script and ``python -m photonflow``
+    (``cli_errors.run_console``: usage errors as one line, exit 130 when interrupted)."""
+    from .cli_errors import run_console
+
+    run_console(app, prog_name="photonflow")

@@ -475,9 +475,10 @@ def calibrate(
     errors, correlation = _physical_errors(problem, theta, curvature)
     edge = [name for name in layout.dense_fields
             if not np.all(np.isfinite(np.asarray(getattr(errors, name))))]
-    if edge:
-        message += (f"; {', '.join(edge)}: at the edge of the parameter range or"
-                    " unconstrained (error inf)")
+    if edge:  # a value without a finite error is no measurement: not converged
+        converged = False
+        message = (f"not converged: {', '.join(edge)} at the edge of the parameter range or"
+                   f" unconstrained (error inf); the steps ended with: {message}")
     return CalibrationResult(
         params=params,
         errors=errors,

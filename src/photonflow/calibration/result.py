@@ -44,7 +44,9 @@ class CalibrationResult:
         free: the free fields.
         method: step rule used ("gauss-newton", "lbfgs", "adam").
         likelihood: "charge" or "charge+time".
-        converged: whether the convergence criteria were met.
+        converged: whether the convergence criteria were met and every dense free
+            value has a finite error (one at the edge of its range or unconstrained,
+            error inf, makes the fit not converged).
         message: why the fit stopped.
         loss: final -log L.
         settings: transport and fit settings (rays, bounces, window ns, tolerances).
@@ -110,38 +112,86 @@ class CalibrationResult:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the JSON file (under a temporary name, then renamed; missing parent
-        folders are created); returns the path."""
+        folders are created; infinite and undefined numbers as the strings "inf",
+        "-inf" and "nan", which ``load`` reads back); returns the path."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         temporary = path.with_name(f".{path.name}.partial")
-        temporary.write_text(json.dumps(self.to_json(), indent=1, allow_nan=True) + "\n")
+        text = json.dumps(_encode_numbers(self.to_json()), indent=1, allow_nan=False)
+        temporary.write_text(text + "\n")
         os.replace(temporary, path)
         return path
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> CalibrationResult:
-        """Read a file written by ``save`` (one-line ``ConfigError`` if it is not one)."""
+        """Read a file written by ``save`` (one-line ``ConfigError`` if it is not one, or
+        lacks a key)."""
         data = _read(path)
-        correlation = data.get("correlation") or {"names": [], "matrix": []}
-        truth = data.get("truth")
-        return cls(
-            params=_params_from_json(data["params"], path, "params"),
-            errors=_params_from_json(data["errors"], path, "errors"),
-            correlation=np.asarray(correlation["matrix"], dtype=np.float64),
-            correlation_names=tuple(correlation["names"]),
-            history=tuple(data.get("history", ())),
-            free=tuple(data["free"]),
-            method=data["method"],
-            likelihood=data["likelihood"],
-            converged=bool(data["converged"]),
-            message=data.get("message", ""),
-            loss=float(data["loss"]),
-            settings=data.get("settings", {}),
-            runs=tuple(data.get("runs", ())),
-            detector=data.get("detector", {}),
-            truth=None if truth is None else _params_from_json(truth, path, "truth"),
-            wall_time_s=float(data.get("wall_time_s", math.nan)),
-        )
+        try:
+            correlation = data.get("correlation") or {"names": [], "matrix": []}
+            truth = data.get("truth")
+            return cls(
+                params=_params_from_json(data["params"], path, "params"),
+                errors=_params_from_json(data["errors"], path, "errors"),
+                correlation=np.asarray(correlation["matrix"], dtype=np.float64),
+                correlation_names=tuple(correlation["names"]),
+                history=tuple(data.get("history", ())),
+                free=tuple(data["free"]),
+                method=data["method"],
+                likelihood=data["likelihood"],
+                converged=bool(data["converged"]),
+                message=data.get("message", ""),
+                loss=float(data["loss"]),
+                settings=data.get("settings", {}),
+                runs=tuple(data.get("runs", ())),
+                detector=data.get("detector", {}),
+                truth=None if truth is None else _params_from_json(truth, path, "truth"),
+                wall_time_s=float(data.get("wall_time_s", math.nan)),
+            )
+        except ConfigError:
+            raise
+        except (KeyError, TypeError, ValueError) as error:
+            raise _incomplete(path, error) from None
+
+
+#: How ``save`` writes the numbers JSON has no literal for (an infinite error, an
+#: undefined correlation), and ``load`` reads them back.
+NON_FINITE = {"inf": math.inf, "-inf": -math.inf, "nan": math.nan}
+
+
+def _encode_numbers(value):
+    """``value`` (nested dicts and lists) with every non-finite float written as the
+    string "inf", "-inf" or "nan", so that the file is valid JSON."""
+    if isinstance(value, dict):
+        return {key: _encode_numbers(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_encode_numbers(item) for item in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    return value
+
+
+def _decode_numbers(value):
+    """The inverse of ``_encode_numbers``: the strings "inf", "-inf" and "nan" as floats
+    (``json.loads`` reads the bare ``Infinity`` and ``NaN`` of older files itself)."""
+    if isinstance(value, dict):
+        return {key: _decode_numbers(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_decode_numbers(item) for item in value]
+    if isinstance(value, str) and value in NON_FINITE:
+        return NON_FINITE[value]
+    return value
+
+
+def _incomplete(path, error: Exception) -> ConfigError:
+    """The one-line error for a calibration result that lacks a key or holds a value of
+    the wrong kind."""
+    if isinstance(error, KeyError):
+        problem = f"the key {error.args[0]!r} is missing"
+    else:
+        problem = " ".join(str(error).split())
+    return ConfigError(f"{path}: not a complete calibration result ({problem}); use a file"
+                       " written by photonflow calibrate")
 
 
 def _params_json(params: Params) -> dict[str, Any]:
@@ -153,6 +203,9 @@ def _params_json(params: Params) -> dict[str, Any]:
 
 
 def _params_from_json(values: dict, path, key: str) -> Params:
+    if not isinstance(values, dict):
+        raise ConfigError(f"{path}: {key}: expected an object of Params fields, not"
+                          f" {type(values).__name__}")
     try:
         return Params.from_dict(values)
     except ConfigError as error:
@@ -168,6 +221,9 @@ def _read(path) -> dict:
         raise ConfigError(f"{path}: not a calibration result ({error})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise ConfigError(f"{path}: not a calibration result (format is not {FORMAT!r})")
+    data = _decode_numbers(data)
+    if not isinstance(data.get("version", 0), int):
+        raise _incomplete(path, TypeError(f"version = {data['version']!r}, not an integer"))
     if int(data.get("version", 0)) > FORMAT_VERSION:
         raise ConfigError(
             f"{path}: calibration format version {data['version']} is newer than this"
@@ -179,7 +235,10 @@ def _read(path) -> dict:
 def load_params(path: str | os.PathLike) -> Params:
     """The fitted ``Params`` of a calibration result file (``CalibrationResult.save``),
     ready for ``expected``, ``sample`` and reconstruction."""
-    return _params_from_json(_read(path)["params"], path, "params")
+    data = _read(path)
+    if "params" not in data:
+        raise _incomplete(path, KeyError("params"))
+    return _params_from_json(data["params"], path, "params")
 
 
 

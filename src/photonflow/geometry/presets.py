@@ -241,7 +241,8 @@ def _build_preset(key: str) -> Detector:
 
 
 def preset_table() -> list[dict[str, object]]:
-    """One row per preset: name, shape, dimensions, sensors, coverage (fraction or nan)."""
+    """One row per preset: name, shape, dimensions, sensors, coverage (fraction or nan),
+    sensor model, medium and source (where its published figures come from)."""
     rows = []
     for preset in PRESETS.values():
         detector = preset_detector(preset.name)
@@ -254,6 +255,7 @@ def preset_table() -> list[dict[str, object]]:
                 "coverage": detector.coverage,
                 "sensor_model": ", ".join(detector.sensor_models),
                 "medium": preset.medium,
+                "source": preset.stated.source,
             }
         )
     return rows

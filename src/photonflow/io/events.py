@@ -36,7 +36,9 @@ class Truth:
         direction: (3,) unit direction of the source or particle (NaN = unknown).
         energy: kinetic energy, MeV (NaN = unknown).
         time: source time, ns (NaN = unknown).
-        seed: random seed that produced the event (-1 = unknown).
+        seed: seed of the run that produced the event, the same for all its events
+            (-1 = unknown); event i of the run is ``sample_events(..., seed, 1,
+            first_event=i)`` (docs/file-format.md).
     """
 
     source_kind: str = static_field(default="")

@@ -144,7 +144,7 @@ def read_detector(h5: h5py.File, path: Path) -> Detector:
         )
     except PhotonflowError as error:
         raise EventFileError(f"{where}: {error}") from None
-    except (KeyError, ValueError, TypeError, OSError) as error:
+    except READ_ERRORS as error:
         raise EventFileError(f"{where}: malformed ({_reason(error)})") from None
 
 
@@ -164,7 +164,7 @@ def read_params(h5: h5py.File, path: Path) -> Params:
         return Params.from_dict({spec.name: group[spec.name][()] for spec in PARAM_SPECS})
     except PhotonflowError as error:
         raise EventFileError(f"{where}: {error}") from None
-    except (KeyError, ValueError, TypeError, OSError) as error:
+    except READ_ERRORS as error:
         raise EventFileError(f"{where}: malformed ({_reason(error)})") from None
 
 
@@ -197,6 +197,20 @@ def params_difference(stored: h5py.Group, params: Params) -> str | None:
         ):
             return f"params.{spec.name} differs"
     return None
+
+
+#: What h5py raises for a file whose bytes are corrupted: OSError for unreadable
+#: data, KeyError for an object it cannot open, RuntimeError for a damaged B-tree, and
+#: ValueError/TypeError for attributes of the wrong kind.
+READ_ERRORS = (OSError, KeyError, RuntimeError, ValueError, TypeError)
+
+
+def damaged(path, what: str, error: BaseException) -> EventFileError:
+    """The one-line error for an event file whose bytes cannot be read back: names the
+    file, what was being read and h5py's reason."""
+    return EventFileError(
+        f"{path}: damaged, cannot read {what} ({_reason(error)}); write the file again"
+    )
 
 
 def _reason(error: BaseException) -> str:
@@ -233,6 +247,11 @@ def open_checked(path: Path, mode: str = "r") -> h5py.File:
         raise EventFileError(f"{path}: cannot open as HDF5 ({_reason(error)})") from None
     try:
         check_layout(h5, path)
+    except READ_ERRORS as error:
+        h5.close()
+        if isinstance(error, PhotonflowError):
+            raise
+        raise damaged(path, "its layout", error) from None
     except BaseException:
         h5.close()
         raise

@@ -19,7 +19,15 @@ from ..errors import EventFileError
 from ..geometry.detector import Detector
 from ..params import Params
 from .events import Event, Truth
-from .hdf5 import HIT_FIELDS, TRUTH_FIELDS, open_checked, read_detector, read_params
+from .hdf5 import (
+    HIT_FIELDS,
+    READ_ERRORS,
+    TRUTH_FIELDS,
+    damaged,
+    open_checked,
+    read_detector,
+    read_params,
+)
 
 #: Events per block when iterating over a file.
 ITER_CHUNK = 10000
@@ -43,16 +51,21 @@ class EventFile:
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = Path(path).expanduser()
         self._h5: h5py.File | None = open_checked(self.path)
-        self._n_events = int(self._h5["events/offsets"].shape[0]) - 1
-        # Dataset handles are kept open: HDF5's chunk cache lives with the handle, so
-        # consecutive small reads do not decompress the same chunk again.
-        events = self._h5["events"]
-        self._offsets = events["offsets"]
-        self._hits = {name: events["hits"][name] for name in HIT_FIELDS}
-        self._truth = {
-            name: events["truth"][name].asstr() if dtype.kind == "O" else events["truth"][name]
-            for name, (dtype, _) in TRUTH_FIELDS.items()
-        }
+        try:
+            self._n_events = int(self._h5["events/offsets"].shape[0]) - 1
+            # Dataset handles are kept open: HDF5's chunk cache lives with the handle, so
+            # consecutive small reads do not decompress the same chunk again.
+            events = self._h5["events"]
+            self._offsets = events["offsets"]
+            self._hits = {name: events["hits"][name] for name in HIT_FIELDS}
+            self._truth = {
+                name: events["truth"][name].asstr() if dtype.kind == "O"
+                else events["truth"][name]
+                for name, (dtype, _) in TRUTH_FIELDS.items()
+            }
+        except READ_ERRORS as error:
+            self.close()
+            raise damaged(self.path, "/events", error) from None
 
     # ---- lifecycle -------------------------------------------------------------
     def close(self) -> None:
@@ -170,10 +183,8 @@ class EventFile:
                 name: _frozen(np.asarray(dataset[start:stop]))
                 for name, dataset in self._truth.items()
             }
-        except (OSError, KeyError, ValueError) as error:
-            raise EventFileError(
-                f"{self.path}: cannot read events {start}:{stop} ({error})"
-            ) from None
+        except READ_ERRORS as error:
+            raise damaged(self.path, f"events {start}:{stop}", error) from None
         local = offsets - h0
         if np.any(np.diff(local) < 0) or h1 - h0 != hits["sensor_id"].shape[0]:
             raise EventFileError(f"{self.path}: malformed, offsets {start}:{stop} not increasing")

@@ -8,7 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import EventFileError
 from ..geometry.shapes import shape_to_dict
+from .hdf5 import READ_ERRORS, damaged
 from .reader import EventFile
 
 #: Elements read per block while scanning a file.
@@ -34,36 +36,16 @@ def summarize_events(path: str | os.PathLike) -> dict:
         EventFileError: the file cannot be read (see ``read_events``).
     """
     with EventFile(path) as events:
-        h5 = events.h5
         detector = events.detector
         n_events = len(events)
-        n_hits = events.n_hits
-        attrs = events.attrs
-
-        hit_min, hit_max = math.inf, -math.inf
-        offsets = h5["events/offsets"]
-        for start in range(0, n_events, SCAN_BLOCK):
-            counts = np.diff(offsets[start : min(start + SCAN_BLOCK, n_events) + 1])
-            hit_min, hit_max = min(hit_min, int(counts.min())), max(hit_max, int(counts.max()))
-
-        charge_sum = 0.0
-        t_min, t_max = math.inf, -math.inf
-        charge, time = h5["events/hits/charge"], h5["events/hits/time"]
-        for start in range(0, n_hits, SCAN_BLOCK):
-            block = slice(start, min(start + SCAN_BLOCK, n_hits))
-            charge_sum += float(np.sum(charge[block], dtype=np.float64))
-            times = time[block]
-            times = times[np.isfinite(times)]
-            if times.size:
-                t_min, t_max = min(t_min, float(times.min())), max(t_max, float(times.max()))
-
-        labels = {}
-        for name in ("source_kind", "particle"):
-            dataset = h5["events/truth"][name].asstr()
-            found: set[str] = set()
-            for start in range(0, n_events, SCAN_BLOCK):
-                found.update(dataset[start : min(start + SCAN_BLOCK, n_events)])
-            labels[name] = sorted(found - {""})
+        try:
+            n_hits, attrs = events.n_hits, events.attrs
+            hit_min, hit_max, charge_sum, (t_min, t_max), labels = _scan(
+                events.h5, n_events, n_hits)
+        except EventFileError:
+            raise
+        except READ_ERRORS as error:
+            raise damaged(events.path, "its events", error) from None
 
     has_events = n_events > 0
     return {
@@ -88,6 +70,36 @@ def summarize_events(path: str | os.PathLike) -> dict:
         "source_kinds": labels["source_kind"],
         "particles": labels["particle"],
     }
+
+
+def _scan(h5, n_events: int, n_hits: int):
+    """Read the whole file block by block: (fewest, most hits per event, total charge
+    p.e., (earliest, latest) hit time ns, truth labels by field)."""
+    hit_min, hit_max = math.inf, -math.inf
+    offsets = h5["events/offsets"]
+    for start in range(0, n_events, SCAN_BLOCK):
+        counts = np.diff(offsets[start : min(start + SCAN_BLOCK, n_events) + 1])
+        hit_min, hit_max = min(hit_min, int(counts.min())), max(hit_max, int(counts.max()))
+
+    charge_sum = 0.0
+    t_min, t_max = math.inf, -math.inf
+    charge, time = h5["events/hits/charge"], h5["events/hits/time"]
+    for start in range(0, n_hits, SCAN_BLOCK):
+        block = slice(start, min(start + SCAN_BLOCK, n_hits))
+        charge_sum += float(np.sum(charge[block], dtype=np.float64))
+        times = time[block]
+        times = times[np.isfinite(times)]
+        if times.size:
+            t_min, t_max = min(t_min, float(times.min())), max(t_max, float(times.max()))
+
+    labels = {}
+    for name in ("source_kind", "particle"):
+        dataset = h5["events/truth"][name].asstr()
+        found: set[str] = set()
+        for start in range(0, n_events, SCAN_BLOCK):
+            found.update(dataset[start : min(start + SCAN_BLOCK, n_events)])
+        labels[name] = sorted(found - {""})
+    return hit_min, hit_max, charge_sum, (t_min, t_max), labels
 
 
 def _size(n_bytes: int) -> str:

@@ -9,6 +9,8 @@ at worst a stale ``.partial`` file beside it.
 A resumable write (``run=`` settings given) uses the fixed name ``.{name}.partial``
 instead, checkpoints it as it goes and keeps it when interrupted, so that the same
 run can continue from it with ``resume=True`` (docs/file-format.md, "Resuming").
+Ctrl-C and SIGTERM wait while a chunk is written and while the file is closed or
+renamed (``interrupts.interrupts_deferred``), so an interrupt never cuts a write.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import numpy as np
 
 from ..errors import EventFileError
 from ..geometry.detector import Detector
+from ..interrupts import interrupts_deferred
 from ..params import PARAM_SPECS, Params
 from .events import Event, Truth, hit_arrays_problem, unknown_vector
 from .hdf5 import (
@@ -308,6 +311,7 @@ class EventWriter:
                     f"{target}: cannot append, the file's parameters differ ({difference})"
                 )
 
+    @interrupts_deferred()  # an interrupt waits until the file is closed or kept
     def __exit__(self, exc_type, exc, traceback) -> None:
         if exc_type is not None:
             if self.run is not None and (self.resume or self.n_run_events > 0):
@@ -409,6 +413,7 @@ class EventWriter:
         for event in _iterate(events, self.path):
             self.append(event)
 
+    @interrupts_deferred()  # a chunk is written whole: an interrupt waits for its end
     def _flush(self) -> None:
         """Write the buffered events to the temporary file."""
         if not self._buffer:

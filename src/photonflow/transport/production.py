@@ -71,10 +71,13 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
     with contextlib.ExitStack() as stack:
         if scheduler is None:
             n_workers = _check_count("workers", workers, 1)
-            with _sigint_ignored():  # Ctrl-C stops the parent, which closes the cluster
+            # Ctrl-C stops the parent, which closes the cluster; a worker's error reaches
+            # the parent as its task's, so the cluster's own logs (which, when it is
+            # closed while starting, are tracebacks of lost heartbeats) stay silent
+            with _sigint_ignored():
                 cluster = stack.enter_context(LocalCluster(
                     n_workers=n_workers, threads_per_worker=1, processes=True,
-                    dashboard_address=None, silence_logs=logging.ERROR,
+                    dashboard_address=None, silence_logs=logging.CRITICAL,
                 ))
             client = stack.enter_context(Client(cluster))
         else:
@@ -85,7 +88,13 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
                 raise ConfigError(
                     f"scheduler = {scheduler!r}: cannot connect ({reason})"
                 ) from None
-        yield client
+        try:
+            yield client
+        except (KeyboardInterrupt, GeneratorExit):
+            # a cluster closed while busy logs the tasks it drops: the run stops anyway
+            for name in ("asyncio", "distributed", "tornado"):
+                logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+            raise
 
 
 @contextlib.contextmanager

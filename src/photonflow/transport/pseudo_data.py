@@ -8,6 +8,7 @@ Positions m, times ns, charges p.e.
 
 from __future__ import annotations
 
+import itertools
 import numbers
 
 import jax
@@ -158,7 +159,7 @@ def sample_events(
     if per_event and len(distinct) != n_events:
         raise ConfigError(f"{len(distinct)} sources for n_events = {n_events}: need one per event")
     seed, grid, light = _prepare(detector, params, distinct, seed, config, medium, generator)
-    sources = distinct if per_event else distinct * int(n_events)
+    sources = distinct if per_event else itertools.repeat(distinct[0], int(n_events))
     events = (
         _event(detector, params, source_i, seed, index, config, grid, light)
         for index, source_i in enumerate(sources, start=int(first_event))

@@ -8,6 +8,7 @@ state, no display needed) and written by ``save_figure`` atomically.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import math
 import os
@@ -298,7 +299,8 @@ def save_figure(figure: Figure, path: str | os.PathLike, dpi: int = DPI) -> Path
             stream.write(buffer.getvalue())
         os.replace(temporary, path)
     except OSError as error:
-        temporary.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):  # absent, or its folder is not one
+            temporary.unlink()
         reason = error.strerror or str(error)
         raise PhotonflowError(f"output = {str(path)!r}: cannot write ({reason})") from None
     return path
