@@ -17,7 +17,6 @@ import functools
 import math
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 from hypothesis import given, seed, settings
@@ -117,8 +116,9 @@ def _inside(shape: str):
             lambda p: tuple(r * x for x in p))
     if shape == "box":
         half = np.asarray(det.shape.half_sizes) - 0.01
-        return st.tuples(unit, unit, unit).map(lambda p: tuple(float(h * x)
-                                                               for h, x in zip(half, p)))
+        return st.tuples(unit, unit, unit).map(
+            lambda p: tuple(float(h * x)
+                            for h, x in zip(half, p, strict=True)))
     return st.tuples(unit, unit, unit).map(lambda p: (30.0 * p[0], 30.0 * p[1], 30.0 * p[2]))
 
 

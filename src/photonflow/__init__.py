@@ -6,8 +6,15 @@ Units everywhere: metres, nanoseconds, MeV, radians; wavelength in nm.
 
 from ._version import __version__
 from .calibration import CalibrationResult, calibrate, load_params
+from .compilation_cache import configure_from_environment, enable_compilation_cache
 from .config import load_config, load_detector
-from .errors import ConfigError, EventFileError, PhotonflowError, SensorFileError
+from .errors import (
+    CalibrationError,
+    ConfigError,
+    EventFileError,
+    PhotonflowError,
+    SensorFileError,
+)
 from .generator import Photons, Track, generate
 from .geometry import Box, Cylinder, Detector, OpenMedium, Sphere, make_detector
 from .geometry.presets import preset_table
@@ -16,7 +23,9 @@ from .likelihood import nll, sensor_nll
 from .params import Params, default_params
 from .prediction import Prediction
 from .sources import DiffuserSource, IsotropicSource, LaserSource
-from .transport import TransportConfig, expected, sample, sample_events
+from .transport import TransportConfig, expected, expected_function, sample, sample_events
+
+configure_from_environment()  # persistent compilation cache (photonflow.compilation_cache)
 
 
 def presets() -> dict[str, dict[str, object]]:
@@ -29,6 +38,7 @@ def presets() -> dict[str, dict[str, object]]:
 
 __all__ = [
     "Box",
+    "CalibrationError",
     "CalibrationResult",
     "calibrate",
     "load_params",
@@ -41,6 +51,7 @@ __all__ = [
     "generate",
     "TransportConfig",
     "expected",
+    "expected_function",
     "nll",
     "sample",
     "sample_events",
@@ -59,6 +70,7 @@ __all__ = [
     "Truth",
     "__version__",
     "default_params",
+    "enable_compilation_cache",
     "load_config",
     "load_detector",
     "make_detector",

@@ -576,7 +576,6 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
     """``calibrate FILE... --out``: check the options and --out, read the runs, fit with
     a live display, print the table, save the result; a fit that did not converge
     still writes its result, says so on stderr and exits with code 1."""
-    import numpy as np
     from rich.live import Live
 
     from .calibration import LIKELIHOODS, calibrate, free_layout, load_params
@@ -610,18 +609,12 @@ def _calibration_fit(files, out, detector, free, init, method, likelihood, rays,
         )
         with Live(console=console(), refresh_per_second=4, transient=False) as live:
             live.update(f"compiling the expected mode of {len(files)} runs ...")
-            try:
-                result = calibrate(
-                    setup.detector, runs.runs, start, list(layout.names), method=method,
-                    likelihood=likelihood, config=config, truth=runs.truth,
-                    max_iterations=max_iterations, callback=_FitProgress(live),
-                    ray_extrapolation=ray_extrapolation, **weight_sets,
-                )
-            except np.linalg.LinAlgError as error:  # a step's linear algebra broke down
-                raise ConfigError(
-                    f"--free = {free!r}: the fit broke down ({error}), its values running"
-                    " to the edge of their range; fix the values these runs do not"
-                    " constrain, add runs, or start elsewhere (--init)") from None
+            result = calibrate(  # a failed fit raises a one-line CalibrationError
+                setup.detector, runs.runs, start, list(layout.names), method=method,
+                likelihood=likelihood, config=config, truth=runs.truth,
+                max_iterations=max_iterations, callback=_FitProgress(live),
+                ray_extrapolation=ray_extrapolation, **weight_sets,
+            )
     console().print(calibration_rich_table(result))
     try:
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -19,6 +19,10 @@ class SensorFileError(PhotonflowError):
     """A measured sensor-layout file cannot be read or fails validation."""
 
 
+class CalibrationError(PhotonflowError):
+    """A calibration fit failed numerically (the stage and the cause in one line)."""
+
+
 class EventFileError(PhotonflowError):
     """An event file is missing, malformed or of an unsupported format version."""
 

@@ -94,16 +94,19 @@ class Prediction:
 
         Returns:
             (N,) log f_j(t_j), log(1/ns). Finite (a large negative number) far in the
-            tails; computed with a max-shifted log-sum-exp so weights of exactly zero
-            keep finite gradients.
+            tails; computed as a log-sum-exp over the components of positive weight,
+            shifted by the largest term, so no term overflows or vanishes whatever the
+            time (components of zero weight contribute nothing, to the value or the
+            gradient).
         """
         z = self._z(t)
         log_component = -0.5 * z * z - jnp.log(self.time_sigma) - _HALF_LOG_2PI
         w = self.time_weight
-        masked = jnp.where(w > 0, log_component, -jnp.inf)
-        shift = jax.lax.stop_gradient(jnp.max(masked, axis=1, keepdims=True))
+        used = w > 0
+        terms = jnp.where(used, jnp.log(jnp.where(used, w, 1.0)) + log_component, -jnp.inf)
+        shift = jax.lax.stop_gradient(jnp.max(terms, axis=1, keepdims=True))
         shift = jnp.where(jnp.isfinite(shift), shift, 0.0)
-        total = jnp.sum(w * jnp.exp(log_component - shift), axis=1)
+        total = jnp.sum(jnp.where(used, jnp.exp(terms - shift), 0.0), axis=1)
         return shift[:, 0] + jnp.log(total)
 
     def time_pdf(self, t: jax.Array) -> jax.Array:

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import CalibrationError, ConfigError, PhotonflowError
 from ..geometry.detector import Detector
 from ..params import PARAM_SPECS, Params, from_unconstrained, validate_params
 from ..transport.optics import TransportConfig
@@ -59,6 +59,32 @@ def unconstrained_labels(
         if bad.size:
             flat.append(f"{name} of {bad.size} sensors (first: {int(bad[0])})")
     return flat
+
+
+class Stage:
+    """What a fit is doing (``name``), and, as a context manager, the boundary that turns
+    a numerical failure inside it (a linear-algebra error, a floating-point or XLA
+    runtime error, memory exhausted) into a one-line ``CalibrationError`` naming the
+    stage. ``PhotonflowError`` passes unchanged."""
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, error, traceback):
+        if error is None or isinstance(error, PhotonflowError):
+            return False
+        if isinstance(error, (np.linalg.LinAlgError, ArithmeticError, RuntimeError,
+                              MemoryError)):
+            text = str(error).strip().splitlines()
+            detail = f"{type(error).__name__}: {text[0][:160]}" if text else type(error).__name__
+            raise CalibrationError(
+                f"calibrate: {self.name} failed ({detail}); check the runs and the starting"
+                " parameters, or fewer free fields / more rays (--rays)"
+            ) from error
+        return False
 
 
 def _refuse_runaway(theta: dict, iteration: int) -> None:
@@ -404,8 +430,10 @@ def calibrate(
 
     Raises:
         ConfigError: bad runs, parameters, names or settings; runs from another detector;
-            or free parameters these runs cannot constrain (flat directions of the
-            curvature), each one line.
+            a run whose expected charge is not finite; or free parameters these runs
+            cannot constrain (flat directions of the curvature), each one line.
+        CalibrationError: a numerical failure during the fit (a linear-algebra error,
+            memory exhausted, ...), one line naming the stage.
     """
     started = time.perf_counter()
     validate_params(init_params, detector.n_sensors)
@@ -420,89 +448,96 @@ def calibrate(
     if jacobian_sets is not None and not (isinstance(jacobian_sets, int) and jacobian_sets >= 1):
         raise ConfigError(f"jacobian_sets = {jacobian_sets!r}: must be None or an integer >= 1")
     prepared = prepare_runs(runs, detector, likelihood)
-    problem = CalibrationProblem(detector, prepared, init_params, layout, likelihood, config, key)
+    stage = Stage("preparing the expected mode of the runs")
+    with stage:  # a numerical failure becomes one CalibrationError naming the stage
+        problem = CalibrationProblem(detector, prepared, init_params, layout, likelihood,
+                                     config, key)
+        theta = problem.initial_theta()
+        problem.check_predictions(theta)
+        stage.name = "the Fisher information at the starting parameters"
+        if offset_start == "median" and likelihood == "charge+time" and "time_offset" in theta:
+            shift = problem.median_time_shift(theta)
+            theta = {**theta, "time_offset": theta["time_offset"] + jnp.asarray(
+                shift, theta["time_offset"].dtype)}
+        _, _, _, curvature = problem.curvature(theta)
+        flat = unconstrained_labels(layout, curvature.positive())
+        if flat:
+            raise ConfigError(
+                f"free: {', '.join(flat)}: not constrained by these runs (1-sigma beyond"
+                f" {UNCONSTRAINED_SIGMA:g} in unconstrained units: a flat direction of the"
+                " Fisher matrix); fix them or add runs sensitive to them"
+            )
 
-    theta = problem.initial_theta()
-    if offset_start == "median" and likelihood == "charge+time" and "time_offset" in theta:
-        shift = problem.median_time_shift(theta)
-        theta = {**theta, "time_offset": theta["time_offset"] + jnp.asarray(
-            shift, theta["time_offset"].dtype)}
-    _, _, _, curvature = problem.curvature(theta)
-    flat = unconstrained_labels(layout, curvature.positive())
-    if flat:
-        raise ConfigError(
-            f"free: {', '.join(flat)}: not constrained by these runs (1-sigma beyond"
-            f" {UNCONSTRAINED_SIGMA:g} in unconstrained units: a flat direction of the"
-            " Fisher matrix); fix them or add runs sensitive to them"
+        state = step_rule.init(problem, theta)
+        history = [{"iteration": 0, "loss": problem.value(theta), "time_s": 0.0,
+                    "values": _dense_values(problem, problem.params_of(theta))}]
+        converged, message = False, f"stopped at max_iterations = {max_iterations}"
+        handover = problem.has_independent_rays and isinstance(step_rule, GaussNewton)
+        for iteration in range(1, int(max_iterations) + 1):
+            stage.name = f"iteration {iteration}"
+            theta, state, step = step_rule.update(problem, theta, state)
+            _refuse_runaway(theta, iteration)
+            _record(problem, theta, history, started, callback, step.loss)
+            if step.loss_change == 0.0 and step.step_size == 0.0:
+                converged = isinstance(step_rule, GaussNewton)
+                message = "no step lowers -log L further" + (
+                    "" if converged else f" ({step_rule.__class__.__name__})"
+                )
+                break
+            if handover and step.step_size < HANDOVER_SIGMA:
+                converged, message = True, (
+                    f"handed over: the largest step was {step.step_size:.2g} < "
+                    f"{HANDOVER_SIGMA:g} sigma"
+                )
+                break
+            if step.loss_change < loss_tolerance and step.step_size < step_tolerance:
+                converged, message = True, (
+                    f"converged: -log L changed by {step.loss_change:.2g} < {loss_tolerance:g}"
+                    f" and the largest step was {step.step_size:.2g} < {step_tolerance:g}"
+                )
+                break
+
+        stage.name = "the errors at the optimum"
+        if problem.has_independent_rays and converged:
+            stage.name = "the independent-ray stage"
+            theta, loss, curvature, converged, message = _independent_ray_steps(
+                problem, theta, history, started, step_tolerance, callback, ray_extrapolation,
+                jacobian_sets,
+            )
+        else:
+            loss, _, _, curvature = problem.curvature(theta)
+        params = problem.params_of(theta)
+        errors, correlation = _physical_errors(problem, theta, curvature)
+        edge = [name for name in layout.dense_fields
+                if not np.all(np.isfinite(np.asarray(getattr(errors, name))))]
+        if edge:  # a value without a finite error is no measurement: not converged
+            converged = False
+            message = (f"not converged: {', '.join(edge)} at the edge of the parameter range or"
+                       f" unconstrained (error inf); the steps ended with: {message}")
+        return CalibrationResult(
+            params=params,
+            errors=errors,
+            correlation=correlation,
+            correlation_names=tuple(layout.dense_names()),
+            history=tuple(history),
+            free=layout.names,
+            method=method if isinstance(method, str) else type(method).__name__,
+            likelihood=likelihood,
+            converged=converged,
+            message=message,
+            loss=loss,
+            settings={
+                "n_rays": config.n_rays,
+                "n_bounces": config.n_bounces,
+                "window_ns": list(config.window),
+                "max_iterations": int(max_iterations),
+                "loss_tolerance": loss_tolerance,
+                "step_tolerance": step_tolerance,
+                "ray_extrapolation": bool(ray_extrapolation),
+                "jacobian_sets": jacobian_sets,
+            },
+            runs=run_provenance(prepared),
+            detector={"name": detector.name, "n_sensors": detector.n_sensors},
+            truth=truth,
+            wall_time_s=time.perf_counter() - started,
         )
-
-    state = step_rule.init(problem, theta)
-    history = [{"iteration": 0, "loss": problem.value(theta), "time_s": 0.0,
-                "values": _dense_values(problem, problem.params_of(theta))}]
-    converged, message = False, f"stopped at max_iterations = {max_iterations}"
-    handover = problem.has_independent_rays and isinstance(step_rule, GaussNewton)
-    for iteration in range(1, int(max_iterations) + 1):
-        theta, state, step = step_rule.update(problem, theta, state)
-        _refuse_runaway(theta, iteration)
-        _record(problem, theta, history, started, callback, step.loss)
-        if step.loss_change == 0.0 and step.step_size == 0.0:
-            converged = isinstance(step_rule, GaussNewton)
-            message = "no step lowers -log L further" + (
-                "" if converged else f" ({step_rule.__class__.__name__})"
-            )
-            break
-        if handover and step.step_size < HANDOVER_SIGMA:
-            converged, message = True, (
-                f"handed over: the largest step was {step.step_size:.2g} < "
-                f"{HANDOVER_SIGMA:g} sigma"
-            )
-            break
-        if step.loss_change < loss_tolerance and step.step_size < step_tolerance:
-            converged, message = True, (
-                f"converged: -log L changed by {step.loss_change:.2g} < {loss_tolerance:g}"
-                f" and the largest step was {step.step_size:.2g} < {step_tolerance:g}"
-            )
-            break
-
-    if problem.has_independent_rays and converged:
-        theta, loss, curvature, converged, message = _independent_ray_steps(
-            problem, theta, history, started, step_tolerance, callback, ray_extrapolation,
-            jacobian_sets,
-        )
-    else:
-        loss, _, _, curvature = problem.curvature(theta)
-    params = problem.params_of(theta)
-    errors, correlation = _physical_errors(problem, theta, curvature)
-    edge = [name for name in layout.dense_fields
-            if not np.all(np.isfinite(np.asarray(getattr(errors, name))))]
-    if edge:  # a value without a finite error is no measurement: not converged
-        converged = False
-        message = (f"not converged: {', '.join(edge)} at the edge of the parameter range or"
-                   f" unconstrained (error inf); the steps ended with: {message}")
-    return CalibrationResult(
-        params=params,
-        errors=errors,
-        correlation=correlation,
-        correlation_names=tuple(layout.dense_names()),
-        history=tuple(history),
-        free=layout.names,
-        method=method if isinstance(method, str) else type(method).__name__,
-        likelihood=likelihood,
-        converged=converged,
-        message=message,
-        loss=loss,
-        settings={
-            "n_rays": config.n_rays,
-            "n_bounces": config.n_bounces,
-            "window_ns": list(config.window),
-            "max_iterations": int(max_iterations),
-            "loss_tolerance": loss_tolerance,
-            "step_tolerance": step_tolerance,
-            "ray_extrapolation": bool(ray_extrapolation),
-            "jacobian_sets": jacobian_sets,
-        },
-        runs=run_provenance(prepared),
-        detector={"name": detector.name, "n_sensors": detector.n_sensors},
-        truth=truth,
-        wall_time_s=time.perf_counter() - started,
-    )

@@ -759,6 +759,22 @@ class CalibrationProblem:
         return SandwichCovariance(parts.newton, parts.information,
                                   np.concatenate(noise_dense), np.concatenate(noise_sensor))
 
+    def check_predictions(self, theta: dict) -> None:
+        """Raise a one-line ``ConfigError`` naming the first run whose expected charge at
+        ``theta`` is not finite (a run the expected mode cannot predict cannot be
+        fitted)."""
+        for index, (run, mean) in enumerate(zip(self.runs, self._each(_mean_jit, theta),
+                                                strict=True)):
+            bad = np.flatnonzero(~np.isfinite(np.asarray(mean)))
+            if bad.size:
+                position = np.round(np.asarray(run.source.position, dtype=float), 4).tolist()
+                raise ConfigError(
+                    f"runs[{index}] ({run.label or 'events'}): the expected charge of"
+                    f" {bad.size} sensors (first: {int(bad[0])}) is not finite for the"
+                    f" source at {position} m at the starting parameters; this is a bug in"
+                    " the expected mode: please report it with the source and detector"
+                )
+
     def median_time_shift(self, theta: dict) -> np.ndarray:
         """(N,) ns: per sensor, the median over all runs' hits of (recorded first-hit time
         - the predicted median first-hit time at ``theta``); 0 for a sensor never hit.

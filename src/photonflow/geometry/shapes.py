@@ -267,7 +267,9 @@ class Sphere(Shape):
         return -points / xp.where(norm > 0, norm, 1.0)
 
     def _raw_interval(self, origins, directions):
-        rho = jnp.linalg.norm(origins, axis=-1)
+        squared = jnp.sum(origins * origins, axis=-1)
+        centre = squared == 0  # finite gradient at the centre, where d rho / d o is 0 x NaN
+        rho = jnp.where(centre, 0.0, jnp.sqrt(jnp.where(centre, 1.0, squared)))
         a = jnp.sum(directions * directions, axis=-1)
         b = jnp.sum(origins * directions, axis=-1)
         c = (rho - self.radius) * (rho + self.radius)

@@ -3,7 +3,7 @@ mode) and photon-by-photon Monte Carlo (sampled mode), on one description of the
 (``optics``). See docs/transport.md."""
 
 from .direct import SPEED_OF_LIGHT, direct_light, direct_light_jit, interpolate_acceptance
-from .expected import expected
+from .expected import expected, expected_function
 from .optics import TransportConfig
 from .production import produce_events
 from .pseudo_data import sample, sample_events
@@ -19,6 +19,7 @@ __all__ = [
     "direct_light_jit",
     "disc_solid_angle",
     "expected",
+    "expected_function",
     "interpolate_acceptance",
     "plane_basis",
     "produce_events",

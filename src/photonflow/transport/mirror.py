@@ -254,12 +254,12 @@ def _sphere_reflections(source, nodes, radius):
     """Reflections off a sphere for nodes (N, Q, 3): (P (T, M, 3), valid (T, M)). The
     circle problem of each node is solved in the plane of the centre, the source and
     the node."""
-    source_norm = jnp.sqrt(jnp.sum(source * source))
+    source_norm = safe_sqrt(jnp.sum(source * source))  # finite gradient at the centre
     off_centre = source_norm > 1e-9 * radius
     node_axis = nodes / jnp.linalg.norm(nodes, axis=-1, keepdims=True)
     first = jnp.where(off_centre, source / jnp.where(off_centre, source_norm, 1.0), node_axis)
     across = nodes - jnp.sum(nodes * first, axis=-1, keepdims=True) * first
-    across_norm = jnp.linalg.norm(across, axis=-1, keepdims=True)
+    across_norm = safe_sqrt(jnp.sum(across * across, axis=-1, keepdims=True))  # 0: collinear
     spare = jax.vmap(jax.vmap(plane_basis))(first)[0]  # any direction across ``first``
     second = jnp.where(
         across_norm > 1e-9 * radius, across / jnp.maximum(across_norm, 1e-30), spare
@@ -372,6 +372,13 @@ def disc_to_wall(points, valid, radius):
 #: Discs, the nearest to a disc's mirrored wall patch, that are tested for covering it
 #: (the patch is mostly smaller than a disc, rarely a few discs across).
 NEAREST_DISCS = 4
+#: ``_ellipses_covered`` spreads its chords over the whole ellipse (rather than over
+#: the part of the minor range where the disc is) for a disc reaching more than
+#: EXTENT_LIMIT half-widths across it, for ellipses smaller than SOLID_SIZE disc radii
+#: and for ellipses thinner than sqrt(SOLID_ASPECT) seen across the disc's axis.
+EXTENT_LIMIT = 100.0
+SOLID_SIZE = 1e-2
+SOLID_ASPECT = 1e-3
 #: Chords across a disc's wall patch over which the part under another disc is
 #: integrated (midpoint rule in the angle of a sine substitution).
 CHORDS = 8
@@ -394,7 +401,7 @@ def _across(discs, points):
     offset = [p - c for p, c in zip(points, position, strict=True)]
     height = sum(o * n for o, n in zip(offset, normal, strict=True))
     across = [o - height * n for o, n in zip(offset, normal, strict=True)]
-    return height, across, jnp.sqrt(sum(a * a for a in across))
+    return height, across, safe_sqrt(sum(a * a for a in across))  # 0 on the axis
 
 
 def _points_covered(discs, points):
@@ -412,9 +419,12 @@ def _principal_axes(spans):
     of the 3 x 2 map scaled by its singular values (closed form for 2 x 2)."""
     s1, s2 = spans[..., 0, :], spans[..., 1, :]
     a, b, c = jnp.sum(s1 * s1, -1), jnp.sum(s1 * s2, -1), jnp.sum(s2 * s2, -1)
-    # eigenvector of [[a, b], [b, c]] for the larger eigenvalue: angle of the major axis
-    # (a circle has any axes: the safe arguments keep its gradient finite)
-    round_ = (jnp.abs(b) + jnp.abs(a - c)) <= 1e-12 * (a + c) + 1e-300
+    # eigenvector of [[a, b], [b, c]] for the larger eigenvalue: angle of the major axis.
+    # A circle has any axes, and near one the angle is set by rounding and its gradient
+    # (~ 1 / anisotropy) overflows: ellipses round to sqrt(eps) keep the conjugate
+    # half-axes themselves (nearly orthogonal and equal there), with safe arguments
+    finfo = jnp.finfo(a.dtype)
+    round_ = (jnp.abs(b) + jnp.abs(a - c)) <= 10.0 * math.sqrt(finfo.eps) * (a + c) + finfo.tiny
     angle = 0.5 * jnp.arctan2(jnp.where(round_, 0.0, 2.0 * b), jnp.where(round_, 1.0, a - c))
     major = jnp.cos(angle)[..., None] * s1 + jnp.sin(angle)[..., None] * s2
     minor = -jnp.sin(angle)[..., None] * s1 + jnp.cos(angle)[..., None] * s2
@@ -436,42 +446,52 @@ def _ellipses_covered(discs, centre, spans):
     height, across, _ = _across(discs, tuple(centre[..., k, None] for k in range(3)))
     major, minor = (tuple(a[..., None] for a in axis) for axis in _principal_axes(spans))
 
-    def flat(vector):  # the part across each disc's axis
+    def flat(vector):  # the part across each disc's axis, in units of the disc's radius
         along = sum(v * n for v, n in zip(vector, normal, strict=True))
-        return tuple(v - along * n for v, n in zip(vector, normal, strict=True))
+        return tuple((v - along * n) / radius for v, n in zip(vector, normal, strict=True))
 
     major, minor = flat(major), flat(minor)
-    tiny = 1e-30 * radius * radius
+    across = tuple(q / radius for q in across)  # already across the axis
     alpha = sum(m * m for m in major)
-    safe_alpha = jnp.maximum(alpha, tiny)
-    # the minor offsets w where the disc can be: the disc is the ellipse |q + M w| < r
-    # in the coordinates w of this one (M = [major, minor], q = across); its extent in w_2
-    # is w0_2 +- r sqrt(G^-1_22), G = M^T M, w0 = -G^-1 M^T q
+    # the minor offsets w where the disc can be: the disc is the ellipse |q + M w| < 1
+    # in the coordinates w of this one (M = [major, minor], q = across, in radii); its
+    # extent in w_2 is w0_2 +- sqrt(G^-1_22), G = M^T M, w0 = -G^-1 M^T q
     mixed = sum(a * b for a, b in zip(major, minor, strict=True))
     g22 = sum(m * m for m in minor)
     det = alpha * g22 - mixed * mixed
-    solid = det > 1e-12 * alpha * alpha
+    # that range is worth computing only for an ellipse that, seen across the disc's
+    # axis, is neither a point (smaller than SOLID_SIZE radii) nor a segment (widths
+    # in a ratio below sqrt(SOLID_ASPECT)), and narrower than EXTENT_LIMIT half-widths:
+    # otherwise the chords cover the whole minor range [-1, 1], each still cut exactly
+    # by the disc, and no 1 / det (huge near a segment, overflowing in the gradient) is
+    # evaluated
+    size = alpha + g22
+    solid = ((size > SOLID_SIZE**2) & (det > SOLID_ASPECT * size * size)
+             & (det * EXTENT_LIMIT**2 > alpha))
     safe_det = jnp.where(solid, det, 1.0)
     on_major = sum(q * m for q, m in zip(across, major, strict=True))
     on_minor = sum(q * m for q, m in zip(across, minor, strict=True))
-    middle = -(alpha * on_minor - mixed * on_major) / safe_det
-    extent = radius * safe_sqrt(alpha / safe_det)
+    middle = jnp.where(solid, -(alpha * on_minor - mixed * on_major) / safe_det, 0.0)
+    extent = safe_sqrt(jnp.where(solid, alpha / safe_det, 1.0))
     low = jnp.where(solid, jnp.maximum(middle - extent, -1.0), -1.0)
     high = jnp.where(solid, jnp.minimum(middle + extent, 1.0), 1.0)
     centre_w, half_w = 0.5 * (low + high), jnp.maximum(0.5 * (high - low), 0.0)
+    # a major half-axis below 1e-4 radii across the disc: each chord is a point
+    tiny = jnp.asarray(1e-8, alpha.dtype)
+    safe_alpha = jnp.where(alpha > tiny, alpha, 1.0)  # the point-like branch is used below
     # the chords on a trailing axis (one fused loop; the graph does not grow with CHORDS)
     theta = -0.5 * math.pi + (np.arange(CHORDS) + 0.5) * math.pi / CHORDS
-    sin_theta = jnp.asarray(np.sin(theta), radius.dtype)
-    chord_weight = jnp.asarray(np.cos(theta) / CHORDS, radius.dtype)
+    sin_theta = jnp.asarray(np.sin(theta), alpha.dtype)
+    chord_weight = jnp.asarray(np.cos(theta) / CHORDS, alpha.dtype)
     across, minor, major = (tuple(c[..., None] for c in v) for v in (across, minor, major))
-    alpha, safe_alpha, tiny, radius_c, centre_w, half_w = (
-        x[..., None] for x in (alpha, safe_alpha, tiny, radius, centre_w, half_w)
+    alpha, safe_alpha, centre_w, half_w = (
+        x[..., None] for x in (alpha, safe_alpha, centre_w, half_w)
     )
     offset = centre_w + half_w * sin_theta  # each chord's minor offset
     reach = safe_sqrt(1.0 - offset * offset)  # its half-length
     start = tuple(q + offset * n for q, n in zip(across, minor, strict=True))
     beta = sum(q * m for q, m in zip(start, major, strict=True))
-    gamma = sum(q * q for q in start) - radius_c * radius_c
+    gamma = sum(q * q for q in start) - 1.0  # the disc: |start + x major| < 1
     root = safe_sqrt(beta * beta - alpha * gamma)
     inside = (jnp.minimum((-beta + root) / safe_alpha, reach)
               - jnp.maximum((-beta - root) / safe_alpha, -reach))

@@ -64,6 +64,11 @@ def plane_basis(normal):
     return u, v
 
 
+#: A pole of ``disc_cone_solid_angle``'s rim integral within this many disc radii of
+#: the disc's centre (as seen from the apex) counts as inside its image.
+POLE_MARGIN = 1.5
+
+
 def _flat_discs(point, centre, normal, radius):
     """Cast the disc arrays to the dtype of ``point`` (3,), broadcast them against each other
     and flatten: (M, 3) centres, (M, 3) normals, (M,) radii and the batch shape."""
@@ -251,9 +256,9 @@ def disc_cone_solid_angle(
         n_intervals, n_gauss: quadrature sizes (static).
 
     Returns:
-        (...,) Omega(R n K) in sr, in [0, min(Omega(R), 2 pi (1 - cos alpha))]; valid for
-        a point at least about two disc radii from the disc (closer, the switch between
-        (A) and (B) may leave a pole near the rim).
+        (...,) Omega(R n K) in sr, in [0, min(Omega(R), 2 pi (1 - cos alpha))], at any
+        distance from the disc (``_use_outside_form`` keeps each form's pole out of the
+        disc's image).
     """
     point, centre, normal, radius, batch = _flat_discs(point, centre, normal, radius)
     dtype = point.dtype
@@ -290,7 +295,7 @@ def disc_cone_solid_angle(
             return rim_versine - cone_versine, turn, perp_sq
 
         geometry = jax.lax.stop_gradient((to_centre, r, axis, opening_angle))
-        use_outside = _use_outside_form(*geometry)
+        use_outside = _use_outside_form(*geometry, jax.lax.stop_gradient(n))
 
         ends = rim_terms(jax.lax.stop_gradient(base * step))[0]
         halves = rim_terms(jax.lax.stop_gradient((base + 0.5) * step))[0]
@@ -311,20 +316,39 @@ def disc_cone_solid_angle(
     return jax.vmap(one)(centre, normal, radius, omega).reshape(batch)
 
 
-def _use_outside_form(to_centre, radius, axis, opening_angle):
+def _use_outside_form(to_centre, radius, axis, opening_angle, normal):
     """Whether ``disc_cone_solid_angle`` uses form (A) for a disc (bool, no gradient).
 
-    theta_c is the angle from the axis to the disc centre and rho = arcsin(r / d) the
-    angular radius of a sphere around the disc, which bounds its image: (A) when
-    theta_c < max(alpha, 2 rho) and theta_c < pi - 2 rho.
+    Form (A) has its pole at -a, form (B) at a; a pole inside the disc's image R (or near
+    its rim) makes that form wrong. A flat disc's image lies within an open hemisphere,
+    so a and -a are never both in it: a disc whose image (enlarged by ``POLE_MARGIN``)
+    contains a takes (A), one containing -a takes (B). Otherwise, with theta_c the angle
+    from the axis to the disc centre and rho = arcsin(r / d) the angular radius of a
+    sphere around the disc: (A) when theta_c < max(alpha, 2 rho) and theta_c < pi - 2 rho.
     """
     distance = jnp.sqrt(jnp.sum(to_centre * to_centre))
     cos_centre = jnp.clip(jnp.dot(to_centre, axis) / distance, -1.0, 1.0)
     centre_angle = jnp.arccos(cos_centre)
     spread = jnp.arcsin(jnp.minimum(radius / distance, 1.0))
-    return (centre_angle < jnp.maximum(opening_angle, 2.0 * spread)) & (
+    by_angle = (centre_angle < jnp.maximum(opening_angle, 2.0 * spread)) & (
         centre_angle < math.pi - 2.0 * spread
     )
+    return jnp.where(
+        _sees_disc(to_centre, normal, POLE_MARGIN * radius, axis),
+        True,
+        jnp.where(_sees_disc(to_centre, normal, POLE_MARGIN * radius, -axis), False, by_angle),
+    )
+
+
+def _sees_disc(to_centre, normal, radius, direction):
+    """Whether the ray from the viewing point along ``direction`` (unit) meets the disc of
+    ``radius`` (m) about ``to_centre`` (m, from the point) with unit ``normal``."""
+    height = jnp.dot(to_centre, normal)
+    along = jnp.dot(direction, normal)
+    meets = height * along > 0
+    t = height / jnp.where(meets, along, 1.0)
+    miss = t * direction - to_centre
+    return meets & (jnp.sum(miss * miss) < radius * radius)
 
 
 def emission_weighted_solid_angle(source, centre, normal, radius):
