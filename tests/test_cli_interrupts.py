@@ -19,6 +19,8 @@ import h5py
 import pytest
 
 EVENTS = 1000
+#: The line of an interrupt while photonflow (and JAX) is still being imported.
+STARTING = "interrupted while photonflow was starting (nothing was done)"
 RUN = ["simulate", "--detector", "TOY_CYLINDER", "--photons", "2000", "--bounces", "1",
        "--events", str(EVENTS), "--seed", "3", "--out", "run.h5"]
 
@@ -81,7 +83,7 @@ def interrupt(tmp_path, signum, delay):
     lines = stderr.strip().splitlines()
     assert len(lines) == 1, stderr
     assert not (tmp_path / "run.h5").exists()
-    if lines[0] == "interrupted":  # before the event file was opened
+    if lines[0] in ("interrupted", STARTING):  # before the event file was opened
         assert list(tmp_path.iterdir()) == []
         return 0, partial
     match = re.fullmatch(rf"interrupted after (\d+) of {EVENTS} events; (.*)", lines[0])
@@ -118,3 +120,17 @@ def test_kill_after_events_keeps_a_partial_file_that_resume_finishes(tmp_path):
     assert not partial.exists()
     with h5py.File(tmp_path / "run.h5", "r") as h5:
         assert int(h5["events"].attrs["n_events"]) == EVENTS
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["int", "term"])
+def test_an_interrupt_while_photonflow_is_imported_is_one_line(tmp_path, signum):
+    """The command takes over both signals as soon as photonflow's import starts (the
+    SIGTERM bit appears), a second before JAX is loaded and the command runs: an
+    interrupt then is one line and exit code 130, not Python's traceback."""
+    process = start(tmp_path)
+    wait_until_running(process)  # the guard of photonflow._startup: JAX still loading
+    process.send_signal(signum)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert stderr.strip().splitlines() == [STARTING]
+    assert list(tmp_path.iterdir()) == []

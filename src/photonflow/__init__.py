@@ -4,6 +4,7 @@ particle detectors (water Cherenkov, liquid scintillator, open media), in JAX.
 Units everywhere: metres, nanoseconds, MeV, radians; wavelength in nm.
 """
 
+from . import _startup as _startup  # first: the command exits 130 on Ctrl-C while JAX loads
 from ._version import __version__
 from .calibration import CalibrationResult, calibrate, load_params
 from .compilation_cache import configure_from_environment, enable_compilation_cache

@@ -770,6 +770,8 @@ def _parse_floats(text: str, option: str) -> tuple[float, ...]:
 def main() -> None:
     """Entry point of the ``photonflow`` console script and ``python -m photonflow``
     (``cli_errors.run_console``: usage errors as one line, exit 130 when interrupted)."""
+    from ._startup import release
     from .cli_errors import run_console
 
+    release()  # run_console handles interrupts from here on
     run_console(app, prog_name="photonflow")
