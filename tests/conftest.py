@@ -24,3 +24,19 @@ settings.register_profile(
     suppress_health_check=[HealthCheck.too_slow],
 )
 settings.load_profile("photonflow")
+
+
+#: Test modules that take minutes (mostly compiling): collected first, so that the
+#: parallel workers (``--dist loadfile``, one module per worker) start them early and
+#: the short modules fill in around them instead of one long module ending the run.
+SLOW_MODULES = ("test_calibration_ensemble.py", "test_robustness.py", "test_expected.py",
+                "test_calibration.py", "test_mirror.py", "test_jax_transforms.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Order the slow modules first (stable: the order within a module is kept)."""
+    def rank(item):
+        name = item.path.name
+        return SLOW_MODULES.index(name) if name in SLOW_MODULES else len(SLOW_MODULES)
+
+    items.sort(key=rank)

@@ -1,6 +1,7 @@
 """The public functions that take ``Params`` work as JAX users write them: under
 ``jax.jit``, ``jax.grad`` and ``jax.vmap``, with the detector prepared once, and a second
-call with new values does not compile again (issue 22)."""
+call with new values does not compile again (issue 22). The gradient with respect to a
+source's position under ``jit`` is test_robustness.py's."""
 
 from __future__ import annotations
 
@@ -76,17 +77,6 @@ def test_vmap_over_a_batch_of_sources_equals_one_call_each(toy):
         np.testing.assert_allclose(
             row, pf.expected(detector, params, single, config=CONFIG).charge, rtol=2e-4,
             atol=1e-6)
-
-
-def test_grad_with_respect_to_the_source_position(toy):
-    detector, params, source, event = toy
-
-    def loss(position):
-        moved = pf.IsotropicSource(position=position, n_photons=1e5)
-        return pf.nll(pf.expected(detector, params, moved, config=CONFIG), event)
-
-    gradient = jax.jit(jax.grad(loss))(jnp.asarray([0.3, 0.0, 0.5]))
-    assert gradient.shape == (3,) and np.all(np.isfinite(np.asarray(gradient)))
 
 
 def test_nll_and_sensor_nll_under_jit_and_vmap(toy):

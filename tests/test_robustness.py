@@ -152,7 +152,9 @@ def checker(shape: str, kind: str):
 
     gradient = jax.value_and_grad(loss, argnums=(0, 1), has_aux=True)
 
-    @jax.jit
+    # compiled without LLVM's optimisations: 17 instead of 25 s each, for a few dozen
+    # evaluations that then take 50 instead of 12 ms on the toys
+    @functools.partial(jax.jit, compiler_options={"xla_backend_optimization_level": 0})
     def check(p, source):
         (value, prediction), (d_params, d_source) = gradient(p, source)
         return prediction, value, d_params, d_source

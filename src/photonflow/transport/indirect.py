@@ -524,32 +524,27 @@ def _nee_in_blocks(nee_block, n: int, dtype, vertex_data):
     return jax.lax.scan(accumulate, zeros, blocks)[0]
 
 
-def _vertex_probes(outgoing, sensors, u_probe, vertex, index, kind, directions, weight, time,
-                   order) -> _Probes:
-    """Probes leaving the vertices of one order: ``u_probe`` (8, K, R) uniforms give K
-    per vertex, drawn from the same proposals as the continuation (``outgoing``); one
-    off the glass leaves a point drawn uniformly on the disc, mirrored about the dome
-    there, as the NEE's ``dome_reflection_density`` assumes. Each carries 1 / K of the
-    vertex's weight times the proposal's factor. Returns flat (K R) probes."""
-    disc_normal = sensors.normals[index]
+def _leaving(outgoing, sensors, u_all, vertex, index, kind, directions):
+    """The continuation and the probes leaving the vertices, from one proposal
+    (``outgoing``): ``u_all`` (8, 1 + K, R) uniforms, set 0 the continuation, sets
+    1..K the probes. Off the glass the continuation is mirrored about the dome where the
+    ray crossed the disc; a probe leaves a point drawn uniformly on the disc, mirrored
+    about the dome there, as the NEE's ``dome_reflection_density`` assumes. Returns
+    (origins (1 + K, R, 3) m, unit directions (1 + K, R, 3), weight factors
+    (1 + K, R)); the continuation leaves the vertex itself."""
+    centre, disc_normal = sensors.positions[index], sensors.normals[index]
     disc_radius = sensors.radius[index]
+    glass = (kind == _GLASS)[:, None]
 
-    def probe(u):
-        offset = _disc_point(disc_normal, disc_radius, u[6], u[7])
-        dome = dome_normal(offset, disc_normal, disc_radius)
+    def one(u, drawn):
+        crossing = jnp.where(drawn, _disc_point(disc_normal, disc_radius, u[6], u[7]),
+                             vertex - centre)
+        dome = dome_normal(crossing, disc_normal, disc_radius)
         direction, factor = outgoing(u, specular_direction(directions, dome))
-        glass = (kind == _GLASS)[:, None]
-        return jnp.where(glass, sensors.positions[index] + offset, vertex), direction, factor
+        origin = jnp.where(glass & drawn, centre + crossing, vertex)
+        return origin, direction, factor
 
-    origins, probe_directions, factor = jax.vmap(probe, in_axes=1)(u_probe)
-    count = u_probe.shape[1]
-    return _Probes(
-        origins=origins.reshape(-1, 3),
-        directions=probe_directions.reshape(-1, 3),
-        weight=(weight * factor / count).reshape(-1),
-        time=jnp.broadcast_to(time, factor.shape).reshape(-1),
-        order=jnp.full(factor.size, order, jnp.int32),
-    )
+    return jax.vmap(one, in_axes=(1, 0))(u_all, jnp.arange(u_all.shape[1]) > 0)
 
 
 def _vertex_step(params, shape, grid, sensors, config, nee, vertex_key, probe_key,
@@ -587,23 +582,29 @@ def _vertex_step(params, shape, grid, sensors, config, nee, vertex_key, probe_ke
     still_on_disc = (kind == _WALL) & (s == 0)
     own_disc = jnp.where(kind == _GLASS, index, jnp.where(still_on_disc, rays.on_disc, n))
     detected = nee(vertex, weight, time, kind, directions, normal, own_disc)
-    outgoing = functools.partial(_outgoing, params, config, kind, directions, normal)
-    probes = None
-    if has_walls:  # light of this vertex mirrored once by the wall into a sensor
+    u_all = u[:, None]
+    if has_walls:  # probes: light of this vertex mirrored once by the wall into a sensor
         u_probe = jax.random.uniform(
             jax.random.fold_in(probe_key, order),
             (_UNIFORMS_PER_VERTEX, config.specular_probes, n_rays),
             dtype=dtype,
         )
-        probes = _vertex_probes(
-            outgoing, sensors, u_probe, vertex, index, kind, directions, weight, time, order
+        u_all = jnp.concatenate([u_all, u_probe], axis=1)
+    outgoing = functools.partial(_outgoing, params, config, kind, directions, normal)
+    origins, leaving, factor = _leaving(outgoing, sensors, u_all, vertex, index, kind,
+                                        directions)
+    probes = None
+    if has_walls:
+        count = config.specular_probes
+        probes = _Probes(
+            origins=origins[1:].reshape(-1, 3),
+            directions=leaving[1:].reshape(-1, 3),
+            weight=(weight * factor[1:] / count).reshape(-1),
+            time=jnp.broadcast_to(time, factor[1:].shape).reshape(-1),
+            order=jnp.full(count * n_rays, order, jnp.int32),
         )
-    glass_direction = specular_direction(
-        directions,
-        dome_normal(vertex - sensors.positions[index], glass_normal, sensors.radius[index]),
-    )
-    directions, factor = outgoing(u, glass_direction)
-    return _Rays(vertex, directions, weight * factor, time, own_disc), (detected, probes)
+    rays = _Rays(vertex, leaving[0], weight * factor[0], time, own_disc)
+    return rays, (detected, probes)
 
 
 def _moments(total, reference_time) -> tuple:
