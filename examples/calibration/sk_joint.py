@@ -5,7 +5,8 @@ Pseudo-data come from the sampled mode (photon by photon) with known true parame
 per-sensor efficiencies drawn with a 10 % spread, optics shifted from the defaults. The
 sources are a central vertically-downward laser and 15 isotropic flashes (the centre and
 14 points on a grid). The fit starts 20-30 % away from the true optics with all
-efficiencies at 1. Prints fitted versus true, the efficiency error against the
+efficiencies at 1 (``photonflow.calibration.campaign`` defines the truth, the sources,
+the runs and the start). Prints fitted versus true, the efficiency error against the
 Cramer-Rao bound, and the wall time of the fit (the benchmark of BENCHMARKS.md).
 
 With ``--experiments N`` it repeats this for N independent pseudo-experiments (seeds
@@ -43,61 +44,26 @@ import numpy as np
 
 import photonflow as pf
 from photonflow.calibration import calibrate
+from photonflow.calibration.campaign import (
+    OPTICS,
+    campaign_runs,
+    campaign_start,
+    campaign_truth,
+    sampled_events,
+)
 from photonflow.calibration.fit import DEFAULT_JACOBIAN_SETS
 from photonflow.io.events import make_event
 from photonflow.likelihood import dark_expectation
 from photonflow.response import single_pe_charges
 from photonflow.transport.expected import expected
 from photonflow.transport.optics import TransportConfig
-from photonflow.transport.pseudo_data import sample_events, source_truth
-
-OPTICS = ["absorption_length", "scattering_length", "wall_reflectivity", "sensor_reflectivity"]
-#: True optics (m, m, probability, probability): attenuation lengths of the order SK
-#: measures (~90-100 m at 400 nm) rather than the preset's 552 m absorption length, which
-#: changes the light across the 40 m tank by only a few per cent.
-TRUE_OPTICS = {"absorption_length": 90.0, "scattering_length": 70.0,
-               "wall_reflectivity": 0.15, "sensor_reflectivity": 0.25}
-
-
-def grid_positions(detector) -> list[list[float]]:
-    """The centre and 14 points on a grid inside the tank (m): 2 radii x 3 azimuths at
-    z = -8 and +8 m, and 2 on the axis at z = +-12 m."""
-    points = [[0.0, 0.0, 0.0], [0.0, 0.0, 12.0], [0.0, 0.0, -12.0]]
-    for z in (-8.0, 8.0):
-        for radius, phase in ((6.0, 0.0), (11.0, np.pi / 3)):
-            for k in range(3):
-                angle = phase + 2 * np.pi * k / 3
-                points.append([radius * np.cos(angle), radius * np.sin(angle), z])
-    return points
-
-
-def campaign_truth(detector, seed: int):
-    """The true ``Params`` of pseudo-experiment ``seed``: ``TRUE_OPTICS`` and per-sensor
-    efficiencies drawn with a 10 % spread."""
-    rng = np.random.default_rng(seed)
-    return pf.default_params(detector).replace(
-        **TRUE_OPTICS, efficiency=rng.normal(1.0, 0.1, detector.n_sensors))
-
-
-def campaign_sources(detector, photons: float) -> list:
-    """The campaign's 16 sources: a downward laser at the centre (0.2 rad opening) and
-    isotropic flashes at ``grid_positions``, ``photons`` each."""
-    sources = [pf.LaserSource(position=[0.0, 0.0, 0.0], direction=[0.0, 0.0, -1.0],
-                              opening_angle=0.2, n_photons=photons)]
-    return sources + [pf.IsotropicSource(position=p, n_photons=photons)
-                      for p in grid_positions(detector)]
-
+from photonflow.transport.pseudo_data import source_truth
 
 #: Ray sets and rays per set of the expected-mode pseudo-data (``--pseudo-data expected``):
 #: 16 times the fit's 1,024 rays, so their ray noise is ~1/16 of the fit's.
 SURROGATE_KEYS, SURROGATE_RAYS = 4, 4096
 #: ``fold_in`` tag of the expected-mode pseudo-data's ray keys (apart from the fit's).
 SURROGATE_STREAM = 0x535552
-
-
-def sampled_events(detector, truth, source, seed: int, config: TransportConfig) -> list:
-    """One event of ``source`` in the sampled mode (photon by photon) at ``truth``."""
-    return list(sample_events(detector, truth, source, seed, 1, config=config))
 
 
 def surrogate_events(detector, truth, source, seed: int, config: TransportConfig) -> list:
@@ -126,27 +92,6 @@ def surrogate_events(detector, truth, source, seed: int, config: TransportConfig
 
 #: ``--pseudo-data`` choices: how a run's events are made.
 PSEUDO_DATA = {"sampled": sampled_events, "expected": surrogate_events}
-
-
-def campaign_runs(detector, truth, seed: int, photons: float, config: TransportConfig,
-                  make_events=sampled_events) -> list:
-    """The campaign's runs (source, events) at ``truth``: one event of every
-    ``campaign_sources`` source (``photons`` per flash), source k with the pseudo-data
-    seed ``1000 * seed + k``, made by ``make_events`` (a ``PSEUDO_DATA`` value)."""
-    return [(source, make_events(detector, truth, source, 1000 * seed + k, config))
-            for k, source in enumerate(campaign_sources(detector, photons))]
-
-
-def campaign_start(detector, truth):
-    """The fit's start: the preset's parameters (every efficiency 1) with the optics 25 %
-    away from ``truth``'s, absorption and sensor reflectivity above, scattering and wall
-    reflectivity below."""
-    return pf.default_params(detector).replace(
-        absorption_length=float(truth.absorption_length) * 1.25,
-        scattering_length=float(truth.scattering_length) * 0.75,
-        wall_reflectivity=float(truth.wall_reflectivity) * 0.75,
-        sensor_reflectivity=float(truth.sensor_reflectivity) * 1.25,
-    )
 
 
 def experiment(detector, seed: int, photons: float, rays: int, free: list[str],

@@ -1,9 +1,9 @@
 """The SK fit's optics refitted with the data or the rays redrawn, one part of the noise
 at a time, against the two parts of the error the fit reports (~2-4 min per fit alone).
 
-``python benchmarks/sk_root_scatter.py data|rays [fits] [seed] [--jacobian-sets K]
+``python studies/calibration/sk_root_scatter.py data|rays [fits] [seed] [--jacobian-sets K]
 [--ray-extrapolation] [--skip S] [--out F.json]``: the campaign experiment ``seed``
-(default 1) of ``examples/calibration/sk_joint.py``, fitted ``fits`` times (default 8):
+(default 1) of ``photonflow.calibration.campaign``, fitted ``fits`` times (default 8):
 
 - ``data``: the fit's ray key stays the campaign's (``key(seed)``); the pseudo-data are
   the campaign's, then those of data seeds 101, 102, ... (the same truth and
@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import jax
@@ -32,10 +31,8 @@ import numpy as np
 
 import photonflow as pf
 from photonflow.calibration import calibrate
+from photonflow.calibration.campaign import OPTICS, campaign_runs, campaign_start, campaign_truth
 from photonflow.transport.optics import TransportConfig
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "calibration"))
-from sk_joint import OPTICS, campaign_runs, campaign_start, campaign_truth  # noqa: E402
 
 #: The first data seed and ray key after the campaign's own.
 FIRST_DATA_SEED, FIRST_RAY_KEY = 101, 5000

@@ -1,7 +1,7 @@
 """Sampled against expected mode on SK through the calibration, source by source, with
 bright pulses (~25 min alone).
 
-``python benchmarks/sk_mismatch_sources.py [pulses] [sources] [components]``: the
+``python studies/calibration/sk_mismatch_sources.py [pulses] [sources] [components]``: the
 projection of ``sk_mismatch.py`` (the shift that the per-sensor difference n - M puts
 into a fit of the four optics with every efficiency profiled, in Cramer-Rao sigma of one
 campaign experiment), with three changes that make each source's share measurable:
@@ -12,7 +12,7 @@ campaign experiment), with three changes that make each source's share measurabl
 - the expected charges M of the difference come from ``KEYS`` ray sets of their own
   (16 x 4,096 rays), independent of the 8 sets that give the projection's derivatives
   and weights (``sk_mismatch.source_rows``), so no ray is used twice;
-- ``sources`` (comma-separated indices of ``sk_joint.campaign_sources``: 0 the laser,
+- ``sources`` (comma-separated indices of ``campaign.campaign_sources``: 0 the laser,
   1 the central flash; default all 16) and ``components`` (``full`` and names of
   ``sk_components.COMPONENTS``, e.g. ``scatter``; default ``full``) choose what is
   compared. A component switches the other light off in the difference only; the
@@ -29,22 +29,18 @@ from __future__ import annotations
 import dataclasses
 import sys
 import time
-from pathlib import Path
 
 import jax
 import numpy as np
 
 import photonflow as pf
+from photonflow.calibration.campaign import TRUE_OPTICS, campaign_sources
 from photonflow.transport.expected import expected
 from photonflow.transport.optics import TransportConfig
 from photonflow.transport.sampled import grid_for, sample_photons
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import sk_mismatch  # noqa: E402
-from sk_components import COMPONENTS  # noqa: E402
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "calibration"))
-from sk_joint import TRUE_OPTICS, campaign_sources  # noqa: E402
+import sk_mismatch
+from sk_components import COMPONENTS
 
 BRIGHTNESS = 10.0
 KEYS = 16
@@ -95,7 +91,7 @@ def main() -> None:
     pulses = int(sys.argv[1]) if len(sys.argv) > 1 else 10
     detector = pf.load_detector("SK")
     truth = pf.default_params(detector).replace(**TRUE_OPTICS)
-    sources = campaign_sources(detector, 1e6)
+    sources = campaign_sources(1e6)
     chosen = ([int(s) for s in sys.argv[2].split(",")] if len(sys.argv) > 2
               else list(range(len(sources))))
     components = sys.argv[3].split(",") if len(sys.argv) > 3 else ["full"]

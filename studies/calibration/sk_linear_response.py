@@ -1,9 +1,9 @@
 """The SK fit's optics linearised at the truth: the response of the independent-ray root
 to sampled pseudo-data, seed by seed, against its sandwich error (~1-2 min a seed).
 
-``python benchmarks/sk_linear_response.py FIRST LAST [--data 0 700 ...] [--draws N]
+``python studies/calibration/sk_linear_response.py FIRST LAST [--data 0 700 ...] [--draws N]
 [--out F.json]``: for each campaign experiment ``seed`` of
-``examples/calibration/sk_joint.py`` from FIRST to LAST (its truth, its fit's ray key
+``photonflow.calibration.campaign`` from FIRST to LAST (its truth, its fit's ray key
 ``key(seed)``), the independent-ray estimating equation at the true parameters with the
 weights J_b averaged over 4 ray sets (as ``calibrate(jacobian_sets=4)``): its Newton
 matrix D, the sandwich's data part D^-1 V D^-T and ray part D^-1 R D^-T, and the linear
@@ -38,21 +38,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import jax
 import numpy as np
 
 import photonflow as pf
+from photonflow.calibration.campaign import OPTICS, campaign_runs, campaign_truth
 from photonflow.calibration.fit import EXTRAPOLATION_SETS, ray_count_shift
 from photonflow.calibration.layout import free_layout
 from photonflow.calibration.objective import CalibrationProblem
 from photonflow.calibration.runs import prepare_runs
 from photonflow.transport.optics import TransportConfig
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "calibration"))
-from sk_joint import OPTICS, campaign_runs, campaign_truth  # noqa: E402
 
 #: Ray sets over which the score's weights are averaged (``calibrate(jacobian_sets=)``).
 WEIGHT_SETS = 4

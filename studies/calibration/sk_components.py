@@ -1,8 +1,8 @@
 """Sampled against expected mode on SK, one light component at a time (~2 min each).
 
-``python benchmarks/sk_components.py [pulses] [components] [position]``: for an isotropic
+``python studies/calibration/sk_components.py [pulses] [components] [position]``: for an isotropic
 flash of 10^7 photons (default at the centre, ``position`` as "x,y,z" in m) at the SK
-campaign's true optics (``examples/calibration/sk_joint.py``), the summed photoelectrons
+campaign's true optics (``photonflow.calibration.campaign``), the summed photoelectrons
 of ``pulses`` sampled pulses (default 40) against the expected mode (4 ray keys x 4,096
 rays), with every other light component switched off:
 
@@ -24,18 +24,15 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
 
 import jax
 import numpy as np
 
 import photonflow as pf
+from photonflow.calibration.campaign import TRUE_OPTICS
 from photonflow.transport.expected import expected
 from photonflow.transport.optics import TransportConfig
 from photonflow.transport.sampled import grid_for, sample_photons
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "calibration"))
-from sk_joint import TRUE_OPTICS  # noqa: E402
 
 PHOTONS = 1e7
 RAY_KEYS = 4

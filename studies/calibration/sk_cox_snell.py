@@ -1,8 +1,8 @@
 """The maximum-likelihood bias of the SK calibration from the data's noise alone
 (Cox & Snell 1968), with 11,146 efficiencies profiled (~2 min).
 
-``python benchmarks/sk_cox_snell.py [seed] [ray_sets]``: at the true parameters of the SK
-campaign (``examples/calibration/sk_joint.py``, seed ``seed``: 16 sources, optics
+``python studies/calibration/sk_cox_snell.py [seed] [ray_sets]``: at the true parameters of the SK
+campaign (``photonflow.calibration.campaign``, seed ``seed``: 16 sources, optics
 90 m / 70 m / 0.15 / 0.25, efficiencies with a 10 % spread), the O(1/n) bias of the
 estimator of the four optics and every efficiency,
 
@@ -25,22 +25,19 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 import photonflow as pf
+from photonflow.calibration.campaign import OPTICS, campaign_sources, campaign_truth, sampled_events
 from photonflow.calibration.information import charge_information, expected_score_curvature
 from photonflow.calibration.layout import free_layout
 from photonflow.calibration.objective import CalibrationProblem, ray_set_keys
 from photonflow.calibration.runs import prepare_runs
 from photonflow.calibration.structured import StructuredMatrix
 from photonflow.transport.optics import TransportConfig
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "calibration"))
-from sk_joint import OPTICS, campaign_sources, campaign_truth, sampled_events  # noqa: E402
 
 
 def information_slope(mean: np.ndarray, spe_width: float) -> np.ndarray:
@@ -59,7 +56,7 @@ def main() -> None:
     detector = pf.load_detector("SK")
     truth = campaign_truth(detector, seed)
     config = TransportConfig(n_bounces=2, n_rays=1024)
-    sources = campaign_sources(detector, 1e6)
+    sources = campaign_sources(1e6)
     # the bias is an expectation; the data only make the problem (its score is not used)
     runs = prepare_runs([(s, sampled_events(detector, truth, s, 1000 * seed + k, config))
                          for k, s in enumerate(sources)], detector, "charge")

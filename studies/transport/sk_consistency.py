@@ -1,6 +1,6 @@
 """Sampled against expected mode at SK scale (too heavy for the test suite; ~2 min).
 
-``python benchmarks/sk_consistency.py [n_bounces]``: SK, an isotropic source of 10^6
+``python studies/transport/sk_consistency.py [n_bounces]``: SK, an isotropic source of 10^6
 photons at the centre, float32; for each optics configuration the total expected p.e.
 (mean over 4 ray keys at 4,096 rays) against the total detected photons of 10 sampled
 pulses (``sample_photons``: no response, no dark noise), with the difference and its

@@ -1,9 +1,9 @@
 """Is the sampled mode's summed charge per sensor compound Poisson, sensor by sensor and
 between sensors, as the calibration's likelihood and its sandwich error assume?
 
-``python benchmarks/sk_charge_statistics.py [SOURCE] [DRAWS]`` draws DRAWS (default 200)
+``python studies/calibration/sk_charge_statistics.py [SOURCE] [DRAWS]`` draws DRAWS (default 200)
 sampled events of source SOURCE (default 1, the flash at the centre) of the SK campaign
-(``examples/calibration/sk_joint.py``, 10^6 photons) at the truth of its seed 1, and
+(``photonflow.calibration.campaign``, 10^6 photons) at the truth of its seed 1, and
 compares, over the draws:
 
 - per sensor, in bands of mean p.e., the summed sample variance of the charge with the
@@ -21,20 +21,16 @@ Takes about a minute for 200 draws on the 2-core machine (57 s alone, 2026-11-25
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 import photonflow as pf
+from photonflow.calibration.campaign import campaign_sources, campaign_truth
 from photonflow.spe import single_pe_moments
 from photonflow.transport.optics import TransportConfig
 from photonflow.transport.pseudo_data import sample_events
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "calibration"))
-from sk_joint import campaign_sources, campaign_truth  # noqa: E402
 
 #: Pseudo-data seed of the draws (apart from every campaign seed's, 1000 seed + k).
 DRAW_SEED = 123457
@@ -62,7 +58,7 @@ def main() -> None:
         parser.error(f"draws = {args.draws}: need at least 3")
     detector = pf.load_detector("SK")
     truth = campaign_truth(detector, 1)
-    sources = campaign_sources(detector, 1e6)
+    sources = campaign_sources(1e6)
     if not 0 <= args.source < len(sources):
         parser.error(f"source = {args.source}: must be in 0..{len(sources) - 1}")
     started = time.perf_counter()

@@ -1,11 +1,11 @@
 """Sampled against expected mode on SK, seen through the calibration (~8 min).
 
-``python benchmarks/sk_mismatch.py [pulses] [component]``: for the 16 sources of the SK campaign
-(``examples/calibration/sk_joint.py``: a downward laser and 15 isotropic flashes of 10^6
-photons) at its true optics, the per-sensor mean photoelectrons of ``pulses`` sampled
-pulses (default 20) against the expected mode (8 ray keys x 4,096 rays, averaged), and
-the shift that the difference puts into a fit of the four optical parameters with every
-sensor's efficiency free:
+``python studies/calibration/sk_mismatch.py [pulses] [component]``: for the 16 sources of
+the SK campaign (``photonflow.calibration.campaign``: a downward laser and 15 isotropic
+flashes of 10^6 photons) at its true optics, the per-sensor mean photoelectrons of
+``pulses`` sampled pulses (default 20) against the expected mode (8 ray keys x 4,096
+rays, averaged), and the shift that the difference puts into a fit of the four optical
+parameters with every sensor's efficiency free:
 
     shift = (J_b^T W_b J_a)^-1 J_b^T W_b (n_sampled - M_a),  W_b = diag(1 / M_b),
 
@@ -28,23 +28,19 @@ from __future__ import annotations
 import dataclasses
 import sys
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 import photonflow as pf
+from photonflow.calibration.campaign import OPTICS, TRUE_OPTICS, campaign_sources
 from photonflow.calibration.structured import StructuredMatrix
 from photonflow.transport.expected import expected
 from photonflow.transport.optics import TransportConfig
 from photonflow.transport.sampled import grid_for, sample_photons
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "calibration"))
-from sk_joint import OPTICS, TRUE_OPTICS, campaign_sources  # noqa: E402
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sk_components import COMPONENTS  # noqa: E402
+from sk_components import COMPONENTS
 
 RAY_KEYS = 8
 CONFIG = TransportConfig(n_bounces=2, n_rays=4096)
@@ -183,7 +179,7 @@ def main() -> None:
         truth = truth.replace(**changes)
         config = dataclasses.replace(CONFIG, n_bounces=bounces)
         print(f"{sys.argv[2]} only: {changes}, {bounces} bounce(s)")
-    sources = campaign_sources(detector, 1e6)
+    sources = campaign_sources(1e6)
     rows = source_rows(detector, truth, sources, pulses, config)
     shift, sigma = optics_shift(rows)
     noise = shift_noise(rows, pulses)
