@@ -17,7 +17,7 @@ Printed per component: the totals, their difference with its statistical error (
 of the sampled counts) and the expected mode's ray noise (spread over the keys), the
 difference on the caps and the barrel, and chi^2 / N of the per-sensor differences. A
 difference beyond its errors is a disagreement of the two modes, which a calibration
-would turn into a bias (docs/calibration.md, "Sampled against expected mode").
+would turn into a bias (studies/calibration-validation.md).
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ information and E[L'''] the expected third derivative of -log L of the summed ch
 optics vanishes (a multiplicative nuisance per sensor is harmless); the charge
 likelihood's Gaussian regime makes it non-zero. M and J are averaged over ``ray_sets``
 ray sets (default 4) of the campaign's 1,024 rays. Prints b in units of the optics'
-Cramer-Rao sigma; the fit's own sigma is 1.8-2.7x larger (docs/calibration.md).
+Cramer-Rao sigma; the fit's own sigma is 1.8-2.7x larger (studies/calibration-validation.md).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ pseudo-data at that truth:
 
 - ``--data`` offsets (default ``0 700``): the pseudo-data of data seed ``seed + offset``
   (offset 0: the campaign's own). The campaign's one-set root theta_1 follows the
-  response to its own data (correlation 0.99 over 40 seeds, docs/calibration.md), so
+  response to its own data (correlation 0.99 over 40 seeds, studies/calibration-validation.md), so
   this is the campaign without the fits. Two draws at one seed share the rays and the
   truth: half the variance of their difference over the seeds is the data part alone.
 - ``--draws N``: instead, N draws per seed (data seeds ``800 + 50 seed + k``): the
