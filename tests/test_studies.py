@@ -29,6 +29,7 @@ def test_script_imports(path, monkeypatch):
         monkeypatch.delitem(sys.modules, name)
     spec = importlib.util.spec_from_file_location(f"_study_{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, module)
     spec.loader.exec_module(module)
     assert callable(module.main)
 
