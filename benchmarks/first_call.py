@@ -20,20 +20,16 @@ import sys
 import tempfile
 import textwrap
 from datetime import date
+from pathlib import Path
 
-README_SNIPPET = """
-import jax
-import photonflow as pf
+README = Path(__file__).resolve().parents[1] / "README.md"
 
-detector = pf.load_detector("TOY_CYLINDER")
-params = pf.default_params(detector)
-source = pf.IsotropicSource(position=[0.3, 0.0, 0.5], n_photons=1e5)   # m, photons
-event = pf.sample(detector, params, source, seed=1)       # pseudo-data, photon by photon
-prediction = pf.expected(detector, params, source)        # smooth expected p.e. and times
-print(float(pf.nll(prediction, event)))                   # exact -log likelihood
-gradient = jax.grad(lambda p: pf.nll(pf.expected(detector, p, source), event))(params)
-print(float(gradient.absorption_length))                  # d(-log L) / d(absorption length)
-"""
+
+def readme_snippet() -> str:
+    """The code block of the README's "Simulating light" section."""
+    text = README.read_text()
+    return text.split("## Simulating light", 1)[1].split("```python\n", 1)[1].split("```")[0]
+
 
 FIRST_CALLS = """
 import time
@@ -94,7 +90,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
     rows = []
-    cold, warm = cold_and_warm(README_SNIPPET, args.repeats)
+    cold, warm = cold_and_warm(readme_snippet(), args.repeats)
     rows.append(("README snippet (TOY_CYLINDER)", "process",
                  statistics.median(r["wall"] for r in cold),
                  statistics.median(r["wall"] for r in warm),
