@@ -29,7 +29,6 @@ import math
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ..params import Params
 
@@ -200,16 +199,15 @@ def acceptance_at_cos(table, cos_incidence):
     entry; below 90 degrees the last). Written as a sum of clipped ramps: no inverse
     trigonometry and no gathers, which keeps it cheap on every sensor-vertex pair, and
     differentiable in the table and in cos theta."""
-    table = jnp.asarray(table)
-    cos_incidence = jnp.asarray(cos_incidence)
-    upper, lower = np.asarray(_ACCEPTANCE_COS[:-1]), np.asarray(_ACCEPTANCE_COS[1:])
-    ramp = jnp.clip(
-        (cos_incidence[..., None] - lower.astype(cos_incidence.dtype))
-        * (1.0 / (upper - lower)).astype(cos_incidence.dtype),
-        0.0,
-        1.0,
-    )
-    return table[9] + jnp.sum((table[:-1] - table[1:]) * ramp, axis=-1)
+    # unrolled on purpose: nine fused element-wise ramps. The same sum on a trailing
+    # axis of nodes compiles faster but made the SK forward pass ~50 % slower (the
+    # (rays, sensors, 9) intermediate of the next-event estimate).
+    value = table[9]
+    for i in range(9):
+        upper, lower = _ACCEPTANCE_COS[i], _ACCEPTANCE_COS[i + 1]
+        ramp = jnp.clip((cos_incidence - lower) * (1.0 / (upper - lower)), 0.0, 1.0)
+        value = value + (table[i] - table[i + 1]) * ramp
+    return value
 
 
 def dome_reflection_density_cos(cos_turn, cos_out, in_normal):
