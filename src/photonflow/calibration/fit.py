@@ -497,7 +497,6 @@ def calibrate(
                 )
                 break
 
-        stage.name = "the errors at the optimum"
         if problem.has_independent_rays and converged:
             stage.name = "the independent-ray stage"
             theta, loss, curvature, converged, message = _independent_ray_steps(
@@ -505,7 +504,9 @@ def calibrate(
                 jacobian_sets,
             )
         else:
+            stage.name = "the curvature at the optimum"
             loss, _, _, curvature = problem.curvature(theta)
+        stage.name = "the errors at the optimum"
         params = problem.params_of(theta)
         errors, correlation = _physical_errors(problem, theta, curvature)
         edge = [name for name in layout.dense_fields

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ConfigError, format_value
+from ..numerics import safe_sqrt
 
 _INF = jnp.inf
 
@@ -267,9 +268,8 @@ class Sphere(Shape):
         return -points / xp.where(norm > 0, norm, 1.0)
 
     def _raw_interval(self, origins, directions):
-        squared = jnp.sum(origins * origins, axis=-1)
-        centre = squared == 0  # finite gradient at the centre, where d rho / d o is 0 x NaN
-        rho = jnp.where(centre, 0.0, jnp.sqrt(jnp.where(centre, 1.0, squared)))
+        # finite gradient at the centre, where d rho / d o is 0 x NaN
+        rho = safe_sqrt(jnp.sum(origins * origins, axis=-1))
         a = jnp.sum(directions * directions, axis=-1)
         b = jnp.sum(origins * directions, axis=-1)
         c = (rho - self.radius) * (rho + self.radius)

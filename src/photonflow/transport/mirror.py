@@ -57,9 +57,10 @@ import numpy as np
 
 from ..geometry.sensor_grid import grid_candidates_xyz
 from ..geometry.shapes import Box, Cylinder, Sphere
+from ..numerics import safe_sqrt
 from ..params import Params
 from ..pytree import pytree_dataclass
-from .optics import acceptance_at_cos, interaction_rates, safe_sqrt, travel_time
+from .optics import acceptance_at_cos, interaction_rates, travel_time
 from .solid_angle import plane_basis
 
 #: Azimuths of the grid that brackets reflection points on a circle.

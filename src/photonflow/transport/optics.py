@@ -278,12 +278,6 @@ def dome_normal_xyz(offset, normal, radius):
     return tuple(c / length for c in dome)
 
 
-def safe_sqrt(x):
-    """sqrt(max(x, 0)) with a finite (zero) gradient at and below 0."""
-    positive = x > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
-
-
 def travel_time(distance, params: Params):
     """Time (ns) for light to travel ``distance`` (m) at the group velocity c / n_g."""
     return distance * params.group_index / SPEED_OF_LIGHT

@@ -333,11 +333,9 @@ def _use_outside_form(to_centre, radius, axis, opening_angle, normal):
     by_angle = (centre_angle < jnp.maximum(opening_angle, 2.0 * spread)) & (
         centre_angle < math.pi - 2.0 * spread
     )
-    return jnp.where(
-        _sees_disc(to_centre, normal, POLE_MARGIN * radius, axis),
-        True,
-        jnp.where(_sees_disc(to_centre, normal, POLE_MARGIN * radius, -axis), False, by_angle),
-    )
+    pole_a_inside = _sees_disc(to_centre, normal, POLE_MARGIN * radius, axis)
+    pole_minus_a_inside = _sees_disc(to_centre, normal, POLE_MARGIN * radius, -axis)
+    return pole_a_inside | (~pole_minus_a_inside & by_angle)
 
 
 def _sees_disc(to_centre, normal, radius, direction):
