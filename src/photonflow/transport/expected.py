@@ -145,7 +145,10 @@ def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
     """``expected_function``'s predictor, uncached."""
 
     def cast(leaf):
-        return jnp.asarray(leaf, dtype=dtype) + jnp.zeros((), dtype)  # drops weak typing
+        leaf = jnp.asarray(leaf, dtype=dtype)
+        if leaf.aval.weak_type:
+            return leaf + jnp.zeros((), dtype)  # strongly typed, as the program expects
+        return leaf  # already right: no eager operation (each was a small compile)
 
     positions, normals, radius, grid, near_grid = expected_inputs(detector, dtype, grid)
 
