@@ -36,6 +36,7 @@ from jax.scipy.special import gammaln, log_ndtr, ndtr
 
 from .errors import ConfigError
 from .io.events import Event
+from .numerics import strict_array
 from .params import Params
 from .prediction import Prediction
 from .spe import single_pe_moments
@@ -263,8 +264,8 @@ def hit_arrays(event: Event, n: int, dtype) -> tuple[jax.Array, jax.Array, jax.A
         np.add.at(q, ids, np.asarray(event.charge, dtype=np.float64))
         t = np.full(n, np.inf)
         np.minimum.at(t, ids, np.asarray(event.time, dtype=np.float64))
-        return (jnp.asarray(hit), jnp.asarray(q, dtype=dtype),
-                jnp.asarray(np.where(hit, t, 0.0), dtype=dtype))
+        return (jax.device_put(hit), strict_array(q, dtype),
+                strict_array(np.where(hit, t, 0.0), dtype))
     ids = jnp.asarray(event.sensor_ids, dtype=jnp.int32)
     charge = jnp.asarray(event.charge).astype(dtype)
     time = jnp.asarray(event.time).astype(dtype)
@@ -316,13 +317,18 @@ def sensor_nll(
         1/p.e. and, with ``use_time``, 1/ns for hit sensors). Differentiable in every
         field of ``prediction`` and ``params``; works under ``jit``.
     """
+    return dense_sensor_nll(
+        *_dense_arguments(prediction, event, params, window),
+        charge_threshold=charge_threshold, use_time=use_time,
+    )
+
+
+def _dense_arguments(prediction: Prediction, event: Event, params, window) -> tuple:
+    """The positional arguments of ``dense_sensor_nll`` for ``sensor_nll``'s inputs."""
     n = prediction.charge.shape[0]
     hit, q, t = hit_arrays(event, n, prediction.charge.dtype)
     dark_rate, spe_width, window = _response(prediction, params, window)
-    return dense_sensor_nll(
-        prediction, hit, q, t, dark_rate, spe_width, window,
-        charge_threshold=charge_threshold, use_time=use_time,
-    )
+    return prediction, hit, q, t, dark_rate, spe_width, window
 
 
 @functools.partial(jax.jit, static_argnames=("window", "charge_threshold", "use_time"))
@@ -384,13 +390,30 @@ def nll(
 
     Arguments as in ``sensor_nll`` (window in ns, threshold in p.e.).
     """
+    return dense_nll(
+        *_dense_arguments(prediction, event, params, window),
+        charge_threshold=charge_threshold, use_time=use_time,
+    )
+
+
+@functools.partial(jax.jit, static_argnames=("window", "charge_threshold", "use_time"))
+def dense_nll(
+    prediction: Prediction,
+    hit: jax.Array,
+    q: jax.Array,
+    t: jax.Array,
+    dark_rate: jax.Array,
+    spe_width: jax.Array,
+    window: tuple[float, float],
+    *,
+    charge_threshold: float | None = None,
+    use_time: bool = True,
+) -> jax.Array:
+    """The sum of ``dense_sensor_nll`` over sensors (scalar), in one jitted program (no
+    eager reduction after it); arguments and units as for ``dense_sensor_nll``."""
     return jnp.sum(
-        sensor_nll(
-            prediction,
-            event,
-            params,
-            window=window,
-            charge_threshold=charge_threshold,
-            use_time=use_time,
+        dense_sensor_nll(
+            prediction, hit, q, t, dark_rate, spe_width, window,
+            charge_threshold=charge_threshold, use_time=use_time,
         )
     )

@@ -21,6 +21,7 @@ import numpy as np
 from .errors import ConfigError, format_value
 from .geometry.detector import Detector
 from .medium import MEDIA
+from .numerics import strict_array
 from .photosensors import SK_ANGULAR_ACCEPTANCE, sensor_model
 from .pytree import pytree_dataclass
 
@@ -158,8 +159,7 @@ class Params:
         unknown = sorted(set(values) - set(SPECS))
         if unknown:
             raise ConfigError(f"params.{unknown[0]}: unknown parameter; known: {', '.join(SPECS)}")
-        dtype = jnp.zeros(()).dtype  # float32 unless 64-bit mode is on
-        return cls(**{name: jnp.asarray(values[name], dtype=dtype) for name in SPECS})
+        return cls(**{name: strict_array(values[name]) for name in SPECS})
 
     def to_unconstrained(self) -> Params:
         """The same pytree with every field mapped to unconstrained real coordinates."""
@@ -293,7 +293,6 @@ def default_params(detector: Detector, medium: str = "water") -> Params:
     counts = np.bincount(np.asarray(detector.sensor_type), minlength=len(detector.sensor_models))
     model = sensor_model(detector.sensor_models[int(np.argmax(counts))])
     n = detector.n_sensors
-    dtype = jnp.zeros(()).dtype
     scalars = {
         "absorption_length": optics.absorption_length,
         "scattering_length": optics.scattering_length,
@@ -310,8 +309,8 @@ def default_params(detector: Detector, medium: str = "water") -> Params:
         "dark_rate": model.dark_rate,
     }
     return Params(
-        **{name: jnp.asarray(value, dtype=dtype) for name, value in scalars.items()},
-        efficiency=jnp.ones(n, dtype=dtype),
-        time_offset=jnp.zeros(n, dtype=dtype),
-        angular_acceptance=jnp.asarray(SK_ANGULAR_ACCEPTANCE, dtype=dtype),
+        **{name: strict_array(value) for name, value in scalars.items()},
+        efficiency=strict_array(np.ones(n)),
+        time_offset=strict_array(np.zeros(n)),
+        angular_acceptance=strict_array(SK_ANGULAR_ACCEPTANCE),
     )

@@ -21,6 +21,7 @@ import numpy as np
 
 from .errors import ConfigError, format_value
 from .geometry.detector import Detector
+from .numerics import strict_array
 from .pytree import pytree_dataclass
 
 #: Allowed deviation of a direction's length from 1 in ``check_source``.
@@ -29,11 +30,10 @@ DIRECTION_TOLERANCE = 1e-3
 
 def _as_leaves(obj) -> None:
     """Convert plain-Python / numpy field values of a source to JAX float arrays."""
-    dtype = jnp.zeros(()).dtype
     for field in dataclasses.fields(obj):
         value = getattr(obj, field.name)
         if isinstance(value, (int, float, list, tuple, np.ndarray, np.generic)):
-            object.__setattr__(obj, field.name, jnp.asarray(value, dtype=dtype))
+            object.__setattr__(obj, field.name, strict_array(value))
 
 
 def _unit(vector):

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..numerics import strict_array
 from ..pytree import pytree_dataclass, static_field
 from .detector import Detector
 from .intersect import disc_hit_distance_xyz
@@ -101,8 +102,8 @@ def build_sensor_grid(
     for flat, members in lists.items():
         candidates[flat, : len(members)] = members
     return SensorGrid(
-        candidates=jnp.asarray(candidates),
-        origin=jnp.asarray(low),
+        candidates=jax.device_put(candidates),
+        origin=strict_array(low),
         cell_size=float(cell_size),
         dims=dims,
     )

@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from ..geometry.detector import Detector
+from ..numerics import strict_array
 from ..params import Params
 from .optics import acceptance_at_cos
 from .solid_angle import emission_weighted_solid_angle
@@ -63,7 +64,7 @@ def direct_light(detector: Detector, params: Params, source):
     dtype = jnp.result_type(params.absorption_length)
 
     def cast(leaf):
-        return jnp.asarray(leaf, dtype=dtype) + jnp.zeros((), dtype)  # drops weak typing
+        return strict_array(leaf, dtype)
 
     return direct_light_jit(
         cast(detector.sensor_positions),

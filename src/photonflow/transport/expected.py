@@ -25,6 +25,7 @@ import jax.numpy as jnp
 
 from ..geometry.detector import Detector
 from ..geometry.sensor_grid import SensorGrid
+from ..numerics import default_float_dtype, strict_array
 from ..params import Params, validate_params
 from ..prediction import Prediction
 from ..sources import check_source
@@ -96,11 +97,10 @@ def expected_inputs(detector: Detector, dtype=None, grid: SensorGrid | None = No
     sensor lookup grid (``grid``, or the detector's own; None for an open medium) and
     the near-sensor grid. Evaluated eagerly even inside a traced function."""
     with jax.ensure_compile_time_eval():
-        dtype = jnp.zeros(()).dtype if dtype is None else dtype
         if grid is None and detector.shape.has_walls:
             grid = sensor_grid_for(detector)
         arrays = (
-            jnp.asarray(x, dtype=dtype) + jnp.zeros((), dtype)  # drops weak typing
+            strict_array(x, dtype)
             for x in (
                 detector.sensor_positions, detector.sensor_normals, detector.sensor_radius
             )
@@ -132,7 +132,7 @@ def expected_function(
         grid: sensor lookup grid (default: built once per detector object).
     """
     config = TransportConfig() if config is None else config
-    dtype = jnp.dtype(jnp.zeros(()).dtype if dtype is None else dtype)
+    dtype = default_float_dtype() if dtype is None else jnp.dtype(dtype)
     if grid is not None:
         return _predictor(detector, dtype, config, grid)
     cached = _PREDICTORS.setdefault(detector, {})
@@ -145,16 +145,12 @@ def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
     """``expected_function``'s predictor, uncached."""
 
     def cast(leaf):
-        leaf = jnp.asarray(leaf, dtype=dtype)
-        if leaf.aval.weak_type:
-            return leaf + jnp.zeros((), dtype)  # strongly typed, as the program expects
-        return leaf  # already right: no eager operation (each was a small compile)
+        return strict_array(leaf, dtype)
 
     positions, normals, radius, grid, near_grid = expected_inputs(detector, dtype, grid)
 
     def predict(params: Params, source, key=None) -> Prediction:
         """Expected p.e. and time mixture per sensor (see ``expected``); no checks."""
-        key = jax.random.key(0) if key is None else key
         return expected_jit(
             positions, normals, radius, grid, jax.tree.map(cast, params),
             jax.tree.map(cast, source), key, near_grid, shape=detector.shape, config=config,
@@ -184,10 +180,12 @@ def expected_jit(
 ):
     """``expected`` on arrays: (N, 3) sensor centres m, (N, 3) inward unit normals, (N,)
     disc radii m, the lookup grid (or None), ``params`` and ``source`` of one float dtype,
-    a ``jax.random`` key, the near-sensor grid (``near_grid_for``; None: far-field
-    solid angles only) and the source's first-order mirror paths
+    a ``jax.random`` key (None: ``jax.random.key(0)``), the near-sensor grid
+    (``near_grid_for``; None: far-field solid angles only) and the source's first-order
+    mirror paths
     (``mirror.mirror_paths``; None: computed here); ``shape`` and ``config`` static.
     Returns a ``Prediction``."""
+    key = jax.random.key(0) if key is None else key  # in the trace: no eager program
     mu_direct, t_direct = direct_light_jit(
         sensor_positions, sensor_normals, sensor_radius, params, source
     )

@@ -79,6 +79,7 @@ from ..geometry.sensor_grid import (
     grid_candidates,
 )
 from ..geometry.shapes import Shape
+from ..numerics import strict_array
 from ..params import Params
 from ..pytree import pytree_dataclass
 from .emission import sample_directions
@@ -733,7 +734,7 @@ def indirect_light(
     dtype = jnp.result_type(params.absorption_length)
 
     def cast(leaf):
-        return jnp.asarray(leaf, dtype=dtype) + jnp.zeros((), dtype)
+        return strict_array(leaf, dtype)
 
     config = TransportConfig() if config is None else config
     if key is None:
@@ -773,7 +774,7 @@ def near_grid_for(detector: Detector) -> SensorGrid | None:
     if not detector.shape.has_walls:
         return None
     if detector not in _NEAR_GRIDS:
-        largest = float(jnp.max(jnp.asarray(detector.sensor_radius)))
+        largest = float(np.max(np.asarray(detector.sensor_radius)))
         _NEAR_GRIDS[detector] = build_sensor_grid(detector, margin=(NEAR_RADII - 1) * largest)
     return _NEAR_GRIDS[detector]
 

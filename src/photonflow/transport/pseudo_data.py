@@ -53,12 +53,28 @@ def source_truth(source, seed: int) -> Truth:
 
 
 
+def event_keys(seed: int, index: int) -> tuple[jax.Array, jax.Array]:
+    """(transport key, response key) of event ``index`` of the run ``seed``: the two
+    halves of ``jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), index))``,
+    computed in one compiled program (eagerly, each of those steps compiles its own)."""
+    if jax.config.jax_enable_x64:
+        seed_argument = np.uint64(seed)
+    else:
+        seed_argument = np.uint32(seed % 2**32)  # what PRNGKey keeps of it in 32-bit mode
+    return _event_keys(seed_argument, np.uint32(index))
+
+
+@jax.jit
+def _event_keys(seed, index):
+    """``event_keys`` on unsigned integer arrays."""
+    keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), index))
+    return keys[0], keys[1]
+
+
 def _event(detector, params, source, seed, index, config, grid, light) -> Event:
     """Event ``index`` of ``seed``: transport and response keys split from
     ``fold_in(PRNGKey(seed), index)``; a track's photons from ``track_photons``."""
-    transport_key, response_key = jax.random.split(
-        jax.random.fold_in(jax.random.PRNGKey(seed), index)
-    )
+    transport_key, response_key = event_keys(seed, index)
     if isinstance(source, Track):
         tally = sample_photon_bundle(
             detector,

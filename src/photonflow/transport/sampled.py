@@ -54,6 +54,7 @@ from ..errors import ConfigError, format_value
 from ..geometry.detector import Detector
 from ..geometry.sensor_grid import SensorGrid, first_sensor_hit_xyz
 from ..geometry.shapes import xyz
+from ..numerics import strict_array
 from ..params import Params, validate_params
 from ..response import DEFAULT_CONFIG
 from ..sources import (
@@ -460,7 +461,7 @@ def grid_for(detector: Detector, grid: SensorGrid | None) -> SensorGrid | None:
 
 def _strict_cast(dtype):
     """``leaf -> array of dtype`` without weak typing (so that jit sees one signature)."""
-    return lambda leaf: jnp.asarray(leaf, dtype=dtype) + jnp.zeros((), dtype)
+    return lambda leaf: strict_array(leaf, dtype)
 
 
 def _device_constants(detector: Detector, params: Params):
@@ -548,8 +549,8 @@ def sample_photons(
     def launch(index):
         return _transport_source_batch(
             key,
-            jnp.uint32(index),
-            jnp.int32(min(batch, n_photons - index * batch)),
+            jax.device_put(np.uint32(index)),
+            jax.device_put(np.int32(min(batch, n_photons - index * batch))),
             sensors,
             grid,
             params_c,
