@@ -87,7 +87,7 @@ def test_event_keys_are_the_documented_split_of_the_run_key(seed, index):
 def test_xla_flag_rules(monkeypatch):
     from jax._src import xla_bridge
 
-    monkeypatch.delenv(xla_settings.ENVIRONMENT, raising=False)
+    monkeypatch.setenv(xla_settings.ENVIRONMENT, "classic")
     monkeypatch.setattr(xla_settings, "jaxlib_version", lambda: xla_settings.KNOWN_JAXLIB[0])
     monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: False)
     monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/nowhere")
@@ -98,13 +98,13 @@ def test_xla_flag_rules(monkeypatch):
     assert not xla_settings.configure_xla_flags()
     assert os.environ["XLA_FLAGS"] == "--xla_cpu_use_fusion_emitters=true"
     monkeypatch.setenv("XLA_FLAGS", "")
-    monkeypatch.setenv(xla_settings.ENVIRONMENT, "default")
-    assert not xla_settings.configure_xla_flags()
-    monkeypatch.delenv(xla_settings.ENVIRONMENT)
+    for setting in ("", "default", "fusion"):  # not asked for: XLA's own choice
+        monkeypatch.setenv(xla_settings.ENVIRONMENT, setting)
+        assert not xla_settings.configure_xla_flags()
+    monkeypatch.setenv(xla_settings.ENVIRONMENT, "classic")
     monkeypatch.setattr(xla_settings, "jaxlib_version", lambda: (99, 0))  # unknown flag set
     assert not xla_settings.configure_xla_flags()
     monkeypatch.setattr(xla_settings, "jaxlib_version", lambda: xla_settings.KNOWN_JAXLIB[0])
     monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: True)  # too late
     assert not xla_settings.configure_xla_flags()
     assert os.environ["XLA_FLAGS"] == ""
-

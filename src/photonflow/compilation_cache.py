@@ -12,7 +12,7 @@ unless the environment says otherwise:
 - a cache directory already configured for JAX (``JAX_COMPILATION_CACHE_DIR`` or
   ``jax.config.update("jax_compilation_cache_dir", ...)`` before the import) is kept.
 
-Programs that took 0.2 s or more to compile are kept (JAX's own threshold, 1 s, is
+Programs that took 20 ms or more to compile are kept (JAX's own threshold, 1 s, is
 only ever lowered, and ``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`` wins). A
 directory that cannot be created leaves the cache off (it only saves time).
 """
@@ -28,8 +28,9 @@ import jax
 ENVIRONMENT = "PHOTONFLOW_COMPILATION_CACHE"
 _OFF = {"", "0", "off", "false", "no", "none"}
 #: Programs that took at least this long (s) to compile are kept (JAX's default is 1 s;
-#: the likelihood and the sampled mode's pieces take 0.2-0.5 s and are loaded in ~10 ms).
-MIN_COMPILE_SECONDS = 0.2
+#: the likelihood, the sampled mode's pieces and an event's keys take 0.05-0.5 s to compile
+#: and are loaded in a few ms).
+MIN_COMPILE_SECONDS = 0.02
 
 
 def default_cache_dir() -> Path:

@@ -1,16 +1,14 @@
-"""XLA settings photonflow chooses for the CPU when it is imported.
+"""An opt-in XLA setting for short jobs on the CPU: XLA's classic CPU emitters.
 
 photonflow's programs (the expected mode and its gradient, the sampled mode, the
 likelihood) are large element-wise graphs. On the CPU, XLA's classic emitters compile
-them about a third faster than the MLIR fusion emitters that are XLA's default (the
-toy detector's expected-mode gradient 12.0 -> 8.2 s, the sampled mode 2.6 -> 1.7 s on
-the 2-core development machine), and the compiled programs run as fast or faster
-(BENCHMARKS.md, docs/performance.md). XLA reads its flags from the environment variable
-``XLA_FLAGS`` once, when JAX first starts a backend, so photonflow adds
-``--xla_cpu_use_fusion_emitters=false`` to it on import when all of these hold:
+them about a third faster than the MLIR fusion emitters that are XLA's default, but
+some compiled programs run slower (BENCHMARKS.md, docs/performance.md): they suit
+short, interactive jobs dominated by compilation, not long fits. XLA reads its flags
+from the environment variable ``XLA_FLAGS`` once, when JAX first starts a backend, so
+with ``PHOTONFLOW_XLA_CPU_EMITTERS=classic`` photonflow adds
+``--xla_cpu_use_fusion_emitters=false`` to it on import, when also
 
-- ``PHOTONFLOW_XLA_CPU_EMITTERS`` is not ``default`` (the switch to keep XLA's own
-  choice);
 - ``XLA_FLAGS`` does not already say which emitters to use;
 - no JAX backend has started yet (otherwise the flag would not be read: nothing
   changes);
@@ -26,7 +24,7 @@ from __future__ import annotations
 
 import os
 
-#: Environment variable: ``default`` keeps XLA's own CPU emitters.
+#: Environment variable: ``classic`` asks for XLA's classic CPU emitters.
 ENVIRONMENT = "PHOTONFLOW_XLA_CPU_EMITTERS"
 #: The flag photonflow adds to ``XLA_FLAGS``.
 CLASSIC_EMITTERS = "--xla_cpu_use_fusion_emitters=false"
@@ -46,13 +44,14 @@ def jaxlib_version() -> tuple[int, int] | None:
 
 
 def configure_xla_flags() -> bool:
-    """Add ``CLASSIC_EMITTERS`` to ``XLA_FLAGS`` where the module docstring's rules
-    allow it (called once when photonflow is imported). Returns whether it was added."""
+    """Add ``CLASSIC_EMITTERS`` to ``XLA_FLAGS`` when ``PHOTONFLOW_XLA_CPU_EMITTERS`` is
+    ``classic`` and the module docstring's rules allow it (called once when photonflow
+    is imported). Returns whether it was added."""
     from jax._src import xla_bridge  # only to ask whether a backend has started
 
     flags = os.environ.get("XLA_FLAGS", "")
     if (
-        os.environ.get(ENVIRONMENT, "").strip().lower() == "default"
+        os.environ.get(ENVIRONMENT, "").strip().lower() != "classic"
         or "xla_cpu_use_fusion_emitters" in flags
         or xla_bridge.backends_are_initialized()
         or jaxlib_version() not in KNOWN_JAXLIB
