@@ -396,24 +396,14 @@ def nll(
     )
 
 
-@functools.partial(jax.jit, static_argnames=("window", "charge_threshold", "use_time"))
-def dense_nll(
-    prediction: Prediction,
-    hit: jax.Array,
-    q: jax.Array,
-    t: jax.Array,
-    dark_rate: jax.Array,
-    spe_width: jax.Array,
-    window: tuple[float, float],
-    *,
-    charge_threshold: float | None = None,
-    use_time: bool = True,
-) -> jax.Array:
-    """The sum of ``dense_sensor_nll`` over sensors (scalar), in one jitted program (no
-    eager reduction after it); arguments and units as for ``dense_sensor_nll``."""
-    return jnp.sum(
-        dense_sensor_nll(
-            prediction, hit, q, t, dark_rate, spe_width, window,
-            charge_threshold=charge_threshold, use_time=use_time,
-        )
-    )
+def _summed_sensor_nll(*arguments, **options) -> jax.Array:
+    """``dense_sensor_nll`` summed over sensors (scalar)."""
+    return jnp.sum(dense_sensor_nll(*arguments, **options))
+
+
+#: ``dense_sensor_nll`` summed over sensors (scalar) in one jitted program, with no eager
+#: reduction after it; arguments and units as for ``dense_sensor_nll`` (the window, the
+#: seventh, static).
+dense_nll = jax.jit(
+    _summed_sensor_nll, static_argnums=(6,), static_argnames=("charge_threshold", "use_time")
+)

@@ -182,8 +182,8 @@ def expected_jit(
     disc radii m, the lookup grid (or None), ``params`` and ``source`` of one float dtype,
     a ``jax.random`` key (None: ``jax.random.key(0)``), the near-sensor grid
     (``near_grid_for``; None: far-field solid angles only) and the source's first-order
-    mirror paths
-    (``mirror.mirror_paths``; None: computed here); ``shape`` and ``config`` static.
+    mirror paths (``mirror.mirror_paths``; None: computed here); ``shape`` and ``config``
+    static.
     Returns a ``Prediction``."""
     key = jax.random.key(0) if key is None else key  # in the trace: no eager program
     mu_direct, t_direct = direct_light_jit(

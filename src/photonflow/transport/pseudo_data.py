@@ -50,9 +50,6 @@ def source_truth(source, seed: int) -> Truth:
     )
 
 
-
-
-
 def event_keys(seed: int, index: int) -> tuple[jax.Array, jax.Array]:
     """(transport key, response key) of event ``index`` of the run ``seed``: the two
     halves of ``jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), index))``,
