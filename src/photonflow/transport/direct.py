@@ -22,6 +22,8 @@ the group index and c = 0.299792458 m/ns. Only sensors whose front face sees the
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 
@@ -63,8 +65,7 @@ def direct_light(detector: Detector, params: Params, source):
     """
     dtype = jnp.result_type(params.absorption_length)
 
-    def cast(leaf):
-        return strict_array(leaf, dtype)
+    cast = functools.partial(strict_array, dtype=dtype)
 
     return direct_light_jit(
         cast(detector.sensor_positions),

@@ -144,8 +144,7 @@ def expected_function(
 def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
     """``expected_function``'s predictor, uncached."""
 
-    def cast(leaf):
-        return strict_array(leaf, dtype)
+    cast = functools.partial(strict_array, dtype=dtype)
 
     positions, normals, radius, grid, near_grid = expected_inputs(detector, dtype, grid)
 

@@ -733,8 +733,7 @@ def indirect_light(
     """
     dtype = jnp.result_type(params.absorption_length)
 
-    def cast(leaf):
-        return strict_array(leaf, dtype)
+    cast = functools.partial(strict_array, dtype=dtype)
 
     config = TransportConfig() if config is None else config
     if key is None:

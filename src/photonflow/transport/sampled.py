@@ -459,16 +459,11 @@ def grid_for(detector: Detector, grid: SensorGrid | None) -> SensorGrid | None:
     return sensor_grid_for(detector) if grid is None else grid
 
 
-def _strict_cast(dtype):
-    """``leaf -> array of dtype`` without weak typing (so that jit sees one signature)."""
-    return lambda leaf: strict_array(leaf, dtype)
-
-
 def _device_constants(detector: Detector, params: Params):
     """(dtype, sensors (positions, normals, radius), params) as arrays of the params'
     float dtype without weak typing, as the jitted batches take them."""
     dtype = jnp.result_type(params.absorption_length)
-    cast = _strict_cast(dtype)
+    cast = functools.partial(strict_array, dtype=dtype)
     sensors = (
         cast(detector.sensor_positions),
         cast(detector.sensor_normals),
@@ -543,7 +538,7 @@ def sample_photons(
     key = as_key(key)
     grid = grid_for(detector, grid)
     dtype, sensors, params_c = _device_constants(detector, params)
-    source_c = jax.tree.map(_strict_cast(dtype), source)
+    source_c = jax.tree.map(functools.partial(strict_array, dtype=dtype), source)
     batch = batch_size_for(n_photons, config)
 
     def launch(index):
