@@ -27,8 +27,9 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from photonflow.errors import ConfigError, format_value
-
+from ..constants import SPEED_OF_LIGHT
+from ..errors import ConfigError, format_value
+from ..progress import with_progress
 from .generate import generate
 from .particles import PARTICLES
 from .settings import GeneratorSettings
@@ -36,8 +37,6 @@ from .track import Track
 
 #: Version of the table file layout; readers refuse other versions.
 SCHEMA_VERSION = 1
-#: Speed of light, m/ns.
-SPEED_OF_LIGHT = 0.299792458
 #: Default energy grid, MeV (kinetic): 100 MeV to 5 GeV, log-spaced.
 DEFAULT_ENERGIES = tuple(float(e) for e in np.geomspace(100.0, 5000.0, 8).round(1))
 #: Default bins per axis: distance, cos(angle), time offset.
@@ -158,7 +157,7 @@ def build_table(
     done = _resumed_rows(resume, table) if resume is not None else set()
     children = np.random.SeedSequence(seed).spawn(len(energies))
     rows = [i for i in range(len(energies)) if i not in done]
-    for i in _progress(rows, progress, f"{particle} table"):
+    for i in with_progress(rows, f"{particle} table", show=progress):
         row = _energy_row(particle, energies[i], per_energy, children[i], medium, settings, edges)
         for field, value in zip(
             ("photons", "time_offsets", "total_yield", "yield_spread", "track_length"),
@@ -198,19 +197,6 @@ def _empty_table(particle, medium, energies, edges, per_energy, settings) -> Emi
         per_energy=per_energy,
         settings=settings,
     )
-
-
-def _progress(items, show: bool, label: str):
-    if not show:
-        yield from items
-        return
-    from rich.progress import Progress
-
-    with Progress(transient=True) as bar:
-        task = bar.add_task(label, total=len(items))
-        for item in items:
-            yield item
-            bar.advance(task)
 
 
 _ARRAYS = (

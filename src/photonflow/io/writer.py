@@ -31,6 +31,7 @@ from ..errors import EventFileError
 from ..geometry.detector import Detector
 from ..interrupts import interrupts_deferred
 from ..params import PARAM_SPECS, Params
+from ..progress import with_progress
 from .events import Event, Truth, hit_arrays_problem, unknown_vector
 from .hdf5 import (
     HIT_FIELDS,
@@ -562,16 +563,8 @@ def write_events(
     writer = EventWriter(path, detector, params, mode=mode, chunk_events=chunk_events)
     with writer:
         if progress:
-            from rich.console import Console
-            from rich.progress import track
-
             total = len(events) if hasattr(events, "__len__") else None
-            events = track(
-                _iterate(events, writer.path),
-                description=f"writing {writer.path.name}",
-                total=total,
-                console=Console(stderr=True),
-                transient=True,
-            )
+            events = with_progress(_iterate(events, writer.path),
+                                   f"writing {writer.path.name}", total=total)
         writer.extend(events)
     return writer.path

@@ -2,7 +2,8 @@
 mode) and photon-by-photon Monte Carlo (sampled mode), on one description of the optics
 (``optics``). See docs/transport.md."""
 
-from .direct import SPEED_OF_LIGHT, direct_light, direct_light_jit, interpolate_acceptance
+from ..constants import SPEED_OF_LIGHT
+from .direct import direct_light, direct_light_jit, interpolate_acceptance
 from .expected import expected, expected_function
 from .optics import TransportConfig
 from .production import produce_events

@@ -27,14 +27,12 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from ..constants import SPEED_OF_LIGHT
 from ..geometry.detector import Detector
 from ..numerics import strict_array
 from ..params import Params
 from .optics import acceptance_at_cos
 from .solid_angle import emission_weighted_solid_angle
-
-#: Speed of light in vacuum, m/ns.
-SPEED_OF_LIGHT = 0.299792458
 
 
 def interpolate_acceptance(table, incidence):

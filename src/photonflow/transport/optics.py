@@ -30,10 +30,9 @@ import math
 import jax
 import jax.numpy as jnp
 
+from ..constants import SPEED_OF_LIGHT
 from ..params import Params
 
-#: Speed of light in vacuum, m/ns.
-SPEED_OF_LIGHT = 0.299792458
 #: Phase-function anisotropy a of Rayleigh scattering in water: (1 - d)/(1 + d) for
 #: depolarisation d = 0.09 (Morel 1974; physics.md section 1).
 WATER_RAYLEIGH_ANISOTROPY = 0.835

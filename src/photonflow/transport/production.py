@@ -24,6 +24,7 @@ from ..generator import GeneratorSettings
 from ..geometry.detector import Detector
 from ..io.events import Event
 from ..params import Params
+from ..progress import with_progress
 from ..response import DEFAULT_CONFIG
 from .optics import TransportConfig
 from .pseudo_data import sample_events
@@ -227,16 +228,5 @@ def _cluster_events(detector, params, source, seed, first_event, n_events, block
 
 def _with_progress(events, first_event: int, n_events: int, label: str, progress: bool):
     """``events``, counted by a transient rich progress bar when ``progress``."""
-    if not progress:
-        return events
-    return _counted(events, first_event, n_events, label)
-
-
-def _counted(events, first_event: int, n_events: int, label: str) -> Iterator[Event]:
-    from rich.progress import Progress
-
-    with Progress(transient=True) as bar:
-        task = bar.add_task(label, total=first_event + n_events, completed=first_event)
-        for event in events:
-            yield event
-            bar.advance(task)
+    return with_progress(events, label, total=first_event + n_events, completed=first_event,
+                         show=progress)

@@ -19,6 +19,7 @@ from ..generator import GeneratorSettings, Track
 from ..geometry.detector import Detector
 from ..io.events import Event, Truth
 from ..params import Params, validate_params
+from ..progress import with_progress
 from ..response import DEFAULT_CONFIG, photoelectrons_to_event
 from ..sources import DiffuserSource, IsotropicSource, LaserSource, check_source
 from .optics import TransportConfig
@@ -177,13 +178,4 @@ def sample_events(
         _event(detector, params, source_i, seed, index, config, grid, light)
         for index, source_i in enumerate(sources, start=int(first_event))
     )
-    if not progress:
-        yield from events
-        return
-    from rich.progress import Progress
-
-    with Progress(transient=True) as bar:
-        task = bar.add_task("sampling events", total=int(n_events))
-        for event in events:
-            yield event
-            bar.advance(task)
+    yield from with_progress(events, "sampling events", total=int(n_events), show=progress)
