@@ -36,7 +36,7 @@ from jax.scipy.special import gammaln, log_ndtr, ndtr
 
 from .errors import ConfigError
 from .io.events import Event
-from .numerics import strict_array
+from .numerics import clip, strict_array, where
 from .params import Params
 from .prediction import Prediction
 from .spe import single_pe_moments
@@ -57,9 +57,9 @@ _LOG2 = math.log(2.0)
 def log1mexp(mu: jax.Array) -> jax.Array:
     """``log(1 - exp(-mu))`` for mu > 0, computed stably (-inf at mu = 0)."""
     small = mu < _LOG2
-    safe_small = jnp.where(small, mu, _LOG2)
-    safe_large = jnp.where(small, 1.0, mu)
-    return jnp.where(small, jnp.log(-jnp.expm1(-safe_small)), jnp.log1p(-jnp.exp(-safe_large)))
+    safe_small = where(small, mu, _LOG2)
+    safe_large = where(small, 1.0, mu)
+    return where(small, jnp.log(-jnp.expm1(-safe_small)), jnp.log1p(-jnp.exp(-safe_large)))
 
 
 def _charge_mixture(
@@ -85,14 +85,14 @@ def _charge_mixture(
 
     def poisson_kernel(n, mean_n, sigma_n):
         one = one_photoelectron(q[..., None], spe_width[..., None])
-        return jnp.where(n == 1, one, normal(q[..., None], mean_n, sigma_n))
+        return where(n == 1, one, normal(q[..., None], mean_n, sigma_n))
 
     def gauss_kernel(mean, sd):
         return normal(q, mean, sd)
 
     tiny = jnp.finfo(mu.dtype).tiny
     lo, hi = mu_switch - blend, mu_switch + blend
-    s = jnp.clip((mu - lo) / (hi - lo), 0.0, 1.0)
+    s = clip((mu - lo) / (hi - lo), 0.0, 1.0)
     s = s * s * (3.0 - 2.0 * s)  # smoothstep: C1 blend
     poisson_only = mu <= lo
     gauss_only = mu >= hi
@@ -101,7 +101,7 @@ def _charge_mixture(
     mean_one, var_one = single_pe_moments(spe_width)
 
     # Exact Poisson sum over n_lo .. n_lo + n_terms - 1 (double-where: safe mu).
-    mu_p = jnp.where(gauss_only, mu_switch, jnp.maximum(mu, tiny))
+    mu_p = where(gauss_only, mu_switch, jnp.maximum(mu, tiny))
     n_lo = jnp.maximum(1.0, jnp.floor(mu_p) - (n_terms // 2 - 1))
     n = n_lo[..., None] + jnp.arange(n_terms, dtype=mu.dtype)
     sigma_n = jnp.sqrt(n * var_one[..., None])
@@ -113,12 +113,12 @@ def _charge_mixture(
     )
 
     # Gaussian approximation (double-where: safe mu).
-    mu_g = jnp.where(poisson_only, mu_switch, mu)
+    mu_g = where(poisson_only, mu_switch, mu)
     log_gauss = gauss_kernel(mu_g * mean_one, jnp.sqrt(mu_g * (var_one + mean_one * mean_one)))
 
-    s_mid = jnp.where(poisson_only | gauss_only, 0.5, s)
+    s_mid = where(poisson_only | gauss_only, 0.5, s)
     mixed = jnp.logaddexp(jnp.log1p(-s_mid) + log_poisson, jnp.log(s_mid) + log_gauss)
-    return jnp.where(poisson_only, log_poisson, jnp.where(gauss_only, log_gauss, mixed))
+    return where(poisson_only, log_poisson, where(gauss_only, log_gauss, mixed))
 
 
 def _normal_logcdf(x: jax.Array, mean: jax.Array, sd: jax.Array) -> jax.Array:
@@ -137,7 +137,7 @@ _LOG_ZERO = -1e30
 def _truncated_logpdf(q: jax.Array, width: jax.Array) -> jax.Array:
     """log density (1/p.e.) of one photoelectron's charge, Normal(1, w) truncated at 0."""
     value = _normal_logpdf(q, 1.0, width) - log_ndtr(1.0 / width)
-    return jnp.where(q >= 0, value, _LOG_ZERO)
+    return where(q >= 0, value, _LOG_ZERO)
 
 
 def _truncated_logcdf(q: jax.Array, width: jax.Array) -> jax.Array:
@@ -145,7 +145,7 @@ def _truncated_logcdf(q: jax.Array, width: jax.Array) -> jax.Array:
     floor = ndtr(-1.0 / width)
     above = jnp.maximum(ndtr((q - 1.0) / width) - floor, jnp.finfo(q.dtype).tiny)
     value = jnp.log(above) - log_ndtr(1.0 / width)
-    return jnp.where(q > 0, value, _LOG_ZERO)
+    return where(q > 0, value, _LOG_ZERO)
 
 
 def charge_logpdf(
@@ -206,13 +206,13 @@ def _log_intensity_and_integral(
     t = jnp.asarray(t, dtype=dtype)
     inside = (t >= t0) & (t <= t1)
     log_f = prediction.time_logpdf(t)
-    log_dark = jnp.where(inside, jnp.log(mu_dark / length), -jnp.inf)
+    log_dark = where(inside, jnp.log(mu_dark / length), -jnp.inf)
     # Shifted sum mu_s e^{log_f} + e^{log_dark}, exact gradients also at mu_s = 0.
     shift = jnp.maximum(log_f + jnp.log(jnp.maximum(mu_s, tiny)), log_dark)
     shift = jax.lax.stop_gradient(shift)
     total = mu_s * jnp.exp(log_f - shift) + jnp.exp(log_dark - shift)
     log_lambda = shift + jnp.log(jnp.maximum(total, tiny))
-    fraction = jnp.clip((t - t0) / length, 0.0, 1.0)
+    fraction = clip((t - t0) / length, 0.0, 1.0)
     big_lambda = mu_s * prediction.time_cdf(t) + mu_dark * fraction
     return log_lambda, big_lambda
 
@@ -272,7 +272,7 @@ def hit_arrays(event: Event, n: int, dtype) -> tuple[jax.Array, jax.Array, jax.A
     hit = jnp.zeros(n, dtype=bool).at[ids].set(True)
     q = jnp.zeros(n, dtype=dtype).at[ids].add(charge)
     t = jnp.full(n, jnp.inf, dtype=dtype).at[ids].min(time)
-    return hit, q, jnp.where(hit, t, 0.0)
+    return hit, q, where(hit, t, 0.0)
 
 
 def _response(prediction: Prediction, params: Params | None, window):
@@ -374,7 +374,7 @@ def dense_sensor_nll(
     else:
         below = charge_logcdf(jnp.full(n, charge_threshold, dtype=dtype), mu, width)
         log_unhit = jnp.logaddexp(-mu, log1mexp(mu) + below)
-    return -jnp.where(hit, log_hit, log_unhit)
+    return -where(hit, log_hit, log_unhit)
 
 
 def nll(

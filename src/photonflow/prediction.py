@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.special import ndtr
 
+from .numerics import where
 from .pytree import pytree_dataclass, static_field
 
 _HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
@@ -103,10 +104,10 @@ class Prediction:
         log_component = -0.5 * z * z - jnp.log(self.time_sigma) - _HALF_LOG_2PI
         w = self.time_weight
         used = w > 0
-        terms = jnp.where(used, jnp.log(jnp.where(used, w, 1.0)) + log_component, -jnp.inf)
+        terms = where(used, jnp.log(where(used, w, 1.0)) + log_component, -jnp.inf)
         shift = jax.lax.stop_gradient(jnp.max(terms, axis=1, keepdims=True))
-        shift = jnp.where(jnp.isfinite(shift), shift, 0.0)
-        total = jnp.sum(jnp.where(used, jnp.exp(terms - shift), 0.0), axis=1)
+        shift = where(jnp.isfinite(shift), shift, 0.0)
+        total = jnp.sum(where(used, jnp.exp(terms - shift), 0.0), axis=1)
         return shift[:, 0] + jnp.log(total)
 
     def time_pdf(self, t: jax.Array) -> jax.Array:

@@ -21,7 +21,7 @@ import numpy as np
 
 from .errors import ConfigError, format_value
 from .geometry.detector import Detector
-from .numerics import strict_array
+from .numerics import strict_array, where
 from .pytree import pytree_dataclass
 
 #: Allowed deviation of a direction's length from 1 in ``check_source``.
@@ -100,7 +100,7 @@ class LaserSource:
         cos_angle = jnp.sum(jnp.asarray(unit_directions) * _unit(self.direction), axis=-1)
         cos_alpha = jnp.cos(self.opening_angle)
         inside = cos_angle >= cos_alpha
-        return jnp.where(inside, 1.0 / (2.0 * math.pi * (1.0 - cos_alpha)), 0.0)
+        return where(inside, 1.0 / (2.0 * math.pi * (1.0 - cos_alpha)), 0.0)
 
 
 @pytree_dataclass

@@ -28,6 +28,7 @@ import numpy as np
 from jax.scipy.special import log_ndtr, ndtr
 
 from ..likelihood import MU_BLEND, MU_SWITCH, charge_logpdf, log1mexp
+from ..numerics import clip, where
 from ..spe import single_pe_moments
 
 #: log10 of the smallest and largest tabulated M, p.e. Below, M I(M) is constant (pure
@@ -113,13 +114,13 @@ def expected_score_curvature(mu: jax.Array, spe_width: float) -> jax.Array:
     ``mu``."""
     log_mu, scaled = score_curvature_table(float(spe_width))
     mu = jnp.asarray(mu)
-    clipped = jnp.clip(jnp.log(mu), log_mu[0], log_mu[-1])
+    clipped = clip(jnp.log(mu), log_mu[0], log_mu[-1])
     table = jnp.interp(clipped, jnp.asarray(log_mu, mu.dtype),
                        jnp.asarray(scaled, mu.dtype)) / (mu * mu)
     with jax.ensure_compile_time_eval():  # constants, also when called under jit
         mean_one, var_one = (float(x) for x in single_pe_moments(spe_width))
     gaussian = -3.0 * mean_one**2 / (mu * mu * (mean_one**2 + var_one)) - 2.0 / mu**3
-    return jnp.where(mu > math.exp(log_mu[-1]), gaussian, table)
+    return where(mu > math.exp(log_mu[-1]), gaussian, table)
 
 
 def charge_information(mu: jax.Array, spe_width: float) -> jax.Array:
@@ -128,9 +129,9 @@ def charge_information(mu: jax.Array, spe_width: float) -> jax.Array:
     float. Shape of ``mu``."""
     log_mu, scaled = information_table(float(spe_width))
     mu = jnp.asarray(mu)
-    clipped = jnp.clip(jnp.log(mu), log_mu[0], log_mu[-1])
+    clipped = clip(jnp.log(mu), log_mu[0], log_mu[-1])
     table = jnp.interp(clipped, jnp.asarray(log_mu, mu.dtype), jnp.asarray(scaled, mu.dtype)) / mu
-    return jnp.where(mu > math.exp(log_mu[-1]), gaussian_limit(mu, spe_width), table)
+    return where(mu > math.exp(log_mu[-1]), gaussian_limit(mu, spe_width), table)
 
 
 def gaussian_limit(mu, spe_width: float):
@@ -183,8 +184,8 @@ def _light_integrals(prediction, t, mu_dark, window):
     after = jnp.sum(weight * ndtr(-z), axis=-1)
     mu_s = prediction.charge[:, None]
     mu_d = jnp.broadcast_to(mu_dark, prediction.charge.shape)[:, None]
-    dark_before = mu_d * jnp.clip((t - t0) / length, 0.0, 1.0)
-    dark_after = mu_d * jnp.clip((t1 - t) / length, 0.0, 1.0)
+    dark_before = mu_d * clip((t - t0) / length, 0.0, 1.0)
+    dark_after = mu_d * clip((t1 - t) / length, 0.0, 1.0)
     return mu_s * before + dark_before, mu_s * after + dark_after
 
 
@@ -215,8 +216,8 @@ def first_hit_quantiles(prediction, mu_dark, window, x) -> jax.Array:
         low, high = bracket
         middle = 0.5 * (low + high)
         log_below, log_above = first_hit_log_cdf(prediction, middle, mu_dark, window)
-        early = jnp.where(lower_tail, log_below < target_below, log_above > target_above)
-        return jnp.where(early, middle, low), jnp.where(early, high, middle)
+        early = where(lower_tail, log_below < target_below, log_above > target_above)
+        return where(early, middle, low), where(early, high, middle)
 
     low, high = jax.lax.fori_loop(0, QUANTILE_ITERATIONS, bisect, (low, high))
     return 0.5 * (low + high)

@@ -47,6 +47,7 @@ from ..likelihood import (
     first_hit_logpdf,
     log1mexp,
 )
+from ..numerics import where
 from ..params import Params, from_unconstrained, to_unconstrained
 from ..prediction import Prediction
 from ..transport.expected import expected_inputs, expected_jit
@@ -96,7 +97,7 @@ def summed_charge_nll(charge_sum, hit_any, mean, spe_width) -> jax.Array:
     photoelectrons M (p.e., signal + dark): M where nothing was recorded, else
     -log[(1 - e^-M) p(Q | M, n >= 1)]."""
     hit_term = log1mexp(mean) + charge_logpdf(charge_sum, mean, spe_width)
-    return -jnp.where(hit_any, hit_term, -mean)
+    return -where(hit_any, hit_term, -mean)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -263,7 +264,7 @@ def _run_terms(theta, base, sensors, data, cached, static: _Static):
         hit, charge, time = event
         if static.terms == "time":
             log_p = first_hit_logpdf(prediction, time, mu_dark, static.window)
-            return -jnp.where(hit, log_p, 0.0)
+            return -where(hit, log_p, 0.0)
         return dense_sensor_nll(
             prediction, hit, charge, time, prediction.dark_rate, prediction.spe_width,
             static.window, use_time=static.terms == "all",

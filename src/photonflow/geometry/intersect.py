@@ -15,6 +15,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from ..numerics import where
 from .detector import Detector
 from .shapes import Shape
 
@@ -31,11 +32,11 @@ def disc_hit_distance_xyz(origin, direction, centre, normal, radius):
     to_centre = [c - o for c, o in zip(centre, origin, strict=True)]
     cos_incidence = sum(d * n for d, n in zip(direction, normal, strict=True))
     facing = cos_incidence < 0
-    safe_cos = jnp.where(facing, cos_incidence, -1.0)
+    safe_cos = where(facing, cos_incidence, -1.0)
     t = sum(w * n for w, n in zip(to_centre, normal, strict=True)) / safe_cos
     miss2 = sum((t * d - w) ** 2 for d, w in zip(direction, to_centre, strict=True))
     hit = facing & (t > 0) & (miss2 <= radius * radius)
-    return jnp.where(hit, t, jnp.inf)
+    return where(hit, t, jnp.inf)
 
 
 def disc_hit_distance(origin, direction, centre, normal, radius):
@@ -59,7 +60,7 @@ def _first_disc_hit(origin, direction, centres, normals, radii):
     )
     index = jnp.argmin(distances)
     distance = distances[index]
-    return jnp.where(jnp.isfinite(distance), index, -1).astype(jnp.int32), distance
+    return where(jnp.isfinite(distance), index, -1).astype(jnp.int32), distance
 
 
 @functools.partial(jax.jit, static_argnames=("batch_size",))

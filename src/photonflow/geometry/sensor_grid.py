@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..numerics import strict_array
+from ..numerics import clip, strict_array, where
 from ..pytree import pytree_dataclass, static_field
 from .detector import Detector
 from .intersect import disc_hit_distance_xyz
@@ -118,7 +118,7 @@ def grid_candidates_xyz(grid: SensorGrid, points):
     """``grid_candidates`` for points given as x, y, z components, each (...,) in m."""
     origin = grid.origin.astype(points[0].dtype)
     cells = [
-        jnp.clip(jnp.floor((p - origin[k]) / grid.cell_size).astype(jnp.int32), 0, n - 1)
+        clip(jnp.floor((p - origin[k]) / grid.cell_size).astype(jnp.int32), 0, n - 1)
         for k, (p, n) in enumerate(zip(points, grid.dims, strict=True))
     ]
     return grid.candidates[(cells[0] * grid.dims[1] + cells[1]) * grid.dims[2] + cells[2]]
@@ -158,11 +158,11 @@ def first_sensor_hit_xyz(
         n = positions.shape[0]
         indices = jnp.broadcast_to(jnp.arange(n), t_wall.shape + (n,))
     else:
-        reach = jnp.where(jnp.isfinite(t_wall), t_wall, 0.0)
+        reach = where(jnp.isfinite(t_wall), t_wall, 0.0)
         exits = [o + reach * d for o, d in zip(origins, directions, strict=True)]
         indices = grid_candidates_xyz(grid, exits)
     valid = indices >= 0
-    safe = jnp.where(valid, indices, 0)
+    safe = where(valid, indices, 0)
     # The ray-disc test on x, y, z components of (R, K) arrays (one fused loop in XLA).
     t = disc_hit_distance_xyz(
         [o[..., None] for o in origins],
@@ -171,8 +171,8 @@ def first_sensor_hit_xyz(
         [normals[:, k][safe] for k in range(3)],
         radius[safe],
     )
-    t = jnp.where(valid & (t > MIN_HIT_DISTANCE) & (t <= t_max[..., None]), t, jnp.inf)
+    t = where(valid & (t > MIN_HIT_DISTANCE) & (t <= t_max[..., None]), t, jnp.inf)
     best = jnp.argmin(t, axis=-1)[..., None]
     distance = jnp.take_along_axis(t, best, axis=-1)[..., 0]
     index = jnp.take_along_axis(safe, best, axis=-1)[..., 0]
-    return jnp.where(jnp.isfinite(distance), index, -1).astype(jnp.int32), distance
+    return where(jnp.isfinite(distance), index, -1).astype(jnp.int32), distance

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ConfigError, format_value
-from ..numerics import safe_sqrt
+from ..numerics import hypot, safe_sqrt, where
 
 _INF = jnp.inf
 
@@ -46,10 +46,10 @@ def _check_positive(shape: str, **values: float) -> None:
 def _safe_divide(numerator, denominator):
     """numerator / denominator with 0 denominators mapped to +-inf (never NaN)."""
     tiny = jnp.abs(denominator) < 1e-30
-    safe = jnp.where(tiny, 1.0, denominator)
+    safe = where(tiny, 1.0, denominator)
     ratio = numerator / safe
-    sign = jnp.where(numerator >= 0, 1.0, -1.0)
-    return jnp.where(tiny, sign * _INF, ratio)
+    sign = where(numerator >= 0, 1.0, -1.0)
+    return where(tiny, sign * _INF, ratio)
 
 
 def _slab_interval(origin, direction, half_width):
@@ -58,8 +58,8 @@ def _slab_interval(origin, direction, half_width):
     t_high = _safe_divide(half_width - origin, direction)
     parallel = jnp.abs(direction) < 1e-30
     inside = jnp.abs(origin) <= half_width
-    t0 = jnp.where(parallel, jnp.where(inside, -_INF, _INF), jnp.minimum(t_low, t_high))
-    t1 = jnp.where(parallel, jnp.where(inside, _INF, -_INF), jnp.maximum(t_low, t_high))
+    t0 = where(parallel, where(inside, -_INF, _INF), jnp.minimum(t_low, t_high))
+    t1 = where(parallel, where(inside, _INF, -_INF), jnp.maximum(t_low, t_high))
     return t0, t1
 
 
@@ -71,19 +71,19 @@ def _quadric_interval(a, b, c):
     """
     disc = b * b - a * c
     positive = disc > 0
-    root = jnp.where(positive, jnp.sqrt(jnp.where(positive, disc, 1.0)), 0.0)  # finite grad
-    q = -(b + jnp.where(b >= 0, root, -root))
-    safe_q = jnp.where(q == 0, 1.0, q)
-    safe_a = jnp.where(a == 0, 1.0, a)
+    root = where(positive, jnp.sqrt(where(positive, disc, 1.0)), 0.0)  # finite grad
+    q = -(b + where(b >= 0, root, -root))
+    safe_q = where(q == 0, 1.0, q)
+    safe_a = where(a == 0, 1.0, a)
     r1 = q / safe_a
-    r2 = jnp.where(q == 0, 0.0, c / safe_q)
+    r2 = where(q == 0, 0.0, c / safe_q)
     t0 = jnp.minimum(r1, r2)
     t1 = jnp.maximum(r1, r2)
     degenerate = a < 1e-30  # direction parallel to the axis of the quadric
-    t0 = jnp.where(degenerate, jnp.where(c <= 0, -_INF, _INF), t0)
-    t1 = jnp.where(degenerate, jnp.where(c <= 0, _INF, -_INF), t1)
+    t0 = where(degenerate, where(c <= 0, -_INF, _INF), t0)
+    t1 = where(degenerate, where(c <= 0, _INF, -_INF), t1)
     miss = (disc < 0) & ~degenerate
-    return jnp.where(miss, _INF, t0), jnp.where(miss, -_INF, t1)
+    return where(miss, _INF, t0), where(miss, -_INF, t1)
 
 
 def _nearest_root(t0, t1):
@@ -91,7 +91,7 @@ def _nearest_root(t0, t1):
     finite0 = jnp.isfinite(t0)
     finite1 = jnp.isfinite(t1)
     pick0 = finite0 & (~finite1 | (jnp.abs(t0) <= jnp.abs(t1)))
-    return jnp.where(pick0, t0, jnp.where(finite1, t1, 0.0))
+    return where(pick0, t0, where(finite1, t1, 0.0))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -158,11 +158,11 @@ class Shape:
 
     def _refine(self, origins, directions, t, hit):
         finite = hit & jnp.isfinite(t)
-        t_safe = jnp.where(finite, t, 0.0)
+        t_safe = where(finite, t, 0.0)
         near = origins + t_safe[..., None] * directions
         c0, c1 = self._raw_interval(near, directions)
-        correction = jnp.where(finite, _nearest_root(c0, c1), 0.0)
-        return jnp.where(finite, t_safe + correction, t)
+        correction = where(finite, _nearest_root(c0, c1), 0.0)
+        return where(finite, t_safe + correction, t)
 
     def ray_exit(self, origins, directions):
         """Distance (m) along each ray from an inside origin to the wall (the exit point)."""
@@ -220,7 +220,7 @@ class Cylinder(Shape):
 def _cylinder_interval(origins, directions, radius, half_height):
     ox, oy, oz = origins[..., 0], origins[..., 1], origins[..., 2]
     dx, dy, dz = directions[..., 0], directions[..., 1], directions[..., 2]
-    rho = jnp.hypot(ox, oy)
+    rho = hypot(ox, oy)
     a = dx * dx + dy * dy
     b = ox * dx + oy * dy
     c = (rho - radius) * (rho + radius)
@@ -229,7 +229,7 @@ def _cylinder_interval(origins, directions, radius, half_height):
     t0 = jnp.maximum(r0, z0)
     t1 = jnp.minimum(r1, z1)
     miss = t0 > t1
-    return jnp.where(miss, _INF, t0), jnp.where(miss, -_INF, t1)
+    return where(miss, _INF, t0), where(miss, -_INF, t1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -332,7 +332,7 @@ class Box(Shape):
             t0 = jnp.maximum(t0, s0)
             t1 = jnp.minimum(t1, s1)
         miss = t0 > t1
-        return jnp.where(miss, _INF, t0), jnp.where(miss, -_INF, t1)
+        return where(miss, _INF, t0), where(miss, -_INF, t1)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 
 from ..constants import SPEED_OF_LIGHT
 from ..geometry.detector import Detector
-from ..numerics import strict_array
+from ..numerics import strict_array, where
 from ..params import Params
 from .optics import acceptance_at_cos
 from .solid_angle import emission_weighted_solid_angle
@@ -104,6 +104,6 @@ def direct_light_jit(sensor_positions, sensor_normals, sensor_radius, params: Pa
         * acceptance
         * attenuation
     )
-    mu = jnp.where(facing, mu, 0.0)
+    mu = where(facing, mu, 0.0)
     arrival_time = source.time + distance * params.group_index / SPEED_OF_LIGHT + params.time_offset
     return mu, arrival_time

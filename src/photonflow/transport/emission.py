@@ -20,6 +20,7 @@ import math
 
 import jax.numpy as jnp
 
+from ..numerics import clip
 from ..sources import DiffuserSource, IsotropicSource, LaserSource
 from .optics import deflect
 
@@ -42,7 +43,7 @@ def linear_anisotropy_cos(u, anisotropy):
     """
     half = 0.5 * anisotropy
     discriminant = jnp.maximum(1.0 - 4.0 * half * (1.0 - half - 2.0 * u), 0.0)
-    return jnp.clip(2.0 * (2.0 * u - 1.0 + half) / (1.0 + jnp.sqrt(discriminant)), -1.0, 1.0)
+    return clip(2.0 * (2.0 * u - 1.0 + half) / (1.0 + jnp.sqrt(discriminant)), -1.0, 1.0)
 
 
 def _axis(vector, dtype):

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 
 from ..geometry.detector import Detector
 from ..geometry.sensor_grid import SensorGrid
-from ..numerics import default_float_dtype, strict_array
+from ..numerics import default_float_dtype, strict_array, where
 from ..params import Params, validate_params
 from ..prediction import Prediction
 from ..sources import check_source
@@ -208,15 +208,15 @@ def expected_jit(
         [jnp.zeros_like(t_direct)[None], indirect.time_variance], axis=0
     ).T
     has_light = charge_parts > 0
-    means = jnp.where(has_light, means, t_direct[:, None])
-    variance_parts = jnp.where(has_light, variance_parts, 0.0)
+    means = where(has_light, means, t_direct[:, None])
+    variance_parts = where(has_light, variance_parts, 0.0)
     smear = params.tts * params.tts + source.pulse_width * source.pulse_width
     sigmas = jnp.sqrt(variance_parts + smear)
     charge = jnp.sum(charge_parts, axis=1)
     lit = charge > 0
-    safe_charge = jnp.where(lit, charge, 1.0)
+    safe_charge = where(lit, charge, 1.0)
     default = jnp.zeros_like(charge_parts).at[:, 0].set(1.0)
-    weights = jnp.where(lit[:, None], charge_parts / safe_charge[:, None], default)
+    weights = where(lit[:, None], charge_parts / safe_charge[:, None], default)
     return Prediction(
         charge=charge,
         time_weight=weights,

@@ -79,7 +79,7 @@ from ..geometry.sensor_grid import (
     grid_candidates,
 )
 from ..geometry.shapes import Shape
-from ..numerics import strict_array
+from ..numerics import strict_array, where
 from ..params import Params
 from ..pytree import pytree_dataclass
 from .emission import sample_directions
@@ -148,15 +148,15 @@ def _trace(shape: Shape, grid, sensors: _Sensors, origins, directions):
     meets the wall at distance 0, as in the sampled mode."""
     t_wall = shape.ray_exit(origins, directions)
     alive = jnp.isfinite(t_wall)
-    t_wall = jnp.where(alive, jnp.maximum(t_wall, 0.0), 0.0)
+    t_wall = where(alive, jnp.maximum(t_wall, 0.0), 0.0)
     # standard promotion: grid_candidates mixes int32 cells with int64 dims under x64
     with jax.numpy_dtype_promotion("standard"):
         index, t_sensor = first_sensor_hit(
             grid, sensors.positions, sensors.normals, sensors.radius, origins, directions, t_wall
         )
     hit = alive & (index >= 0)
-    t_end = jnp.where(hit, t_sensor, t_wall)
-    return t_end, jnp.where(hit, index, 0), hit, alive
+    t_end = where(hit, t_sensor, t_wall)
+    return t_end, where(hit, index, 0), hit, alive
 
 
 def _detect_on_segment(params, sensors, weight, time, directions, t_end, index, counts, slot,
@@ -174,7 +174,7 @@ def _detect_on_segment(params, sensors, weight, time, directions, t_end, index, 
         * params.efficiency[index]
         * acceptance_at_cos(params.angular_acceptance, cos_in)
     )
-    detected = jnp.where(counts, detected, 0.0)
+    detected = where(counts, detected, 0.0)
     arrival = time + travel_time(t_end, params) + params.time_offset[index]
     zeros = jnp.zeros(size, dtype=weight.dtype)
     return (
@@ -218,8 +218,8 @@ def _redirection(params, config, cos_turn, cos_out, in_normal, kind):
     glass_density = params.sensor_reflectivity * dome_reflection_density_cos(
         cos_turn, cos_out, in_normal
     )
-    return jnp.where(
-        kind == _SCATTER, scatter_density, jnp.where(kind == _WALL, wall_density, glass_density)
+    return where(
+        kind == _SCATTER, scatter_density, where(kind == _WALL, wall_density, glass_density)
     )
 
 
@@ -278,7 +278,7 @@ def _next_event(
     solid_angle = far_solid_angle(distance, cos_in, sensors.radius)
     contribution = weight[:, None] * factor * solid_angle * params.efficiency
     own = own_disc[:, None] == jnp.arange(n, dtype=own_disc.dtype)
-    contribution = jnp.where(own, 0.0, contribution)
+    contribution = where(own, 0.0, contribution)
     relative = time[:, None] + travel_time(distance, params) + params.time_offset - reference
     return (
         jnp.sum(contribution, axis=0),
@@ -297,7 +297,7 @@ def _near_correction(
     n = sensors.positions.shape[0]
     candidates = grid_candidates(near_grid, vertex)  # (R, K)
     valid = candidates >= 0
-    index = jnp.where(valid, candidates, 0)
+    index = where(valid, candidates, 0)
     positions = sensors.positions[index]
     normals = sensors.normals[index]
     radius = sensors.radius[index]
@@ -315,11 +315,11 @@ def _near_correction(
     # on) are evaluated at a harmless point and dropped, keeping gradients finite.
     seen = valid & (cos_in > 1e-6)
     left_out = candidates == own_disc[:, None]
-    from_centre = jnp.where(seen[..., None], vertex[:, None, :] - positions, normals)
+    from_centre = where(seen[..., None], vertex[:, None, :] - positions, normals)
     height = jnp.abs(jnp.sum(from_centre * normals, axis=-1))
     in_plane_sq = jnp.maximum(jnp.sum(from_centre * from_centre, axis=-1) - height**2, 0.0)
     exact = disc_solid_angle_local(in_plane_sq, height, radius, NEAR_NODES)
-    delta = jnp.where(seen & ~left_out, exact - far_solid_angle(distance, cos_in, radius), 0.0)
+    delta = where(seen & ~left_out, exact - far_solid_angle(distance, cos_in, radius), 0.0)
     contribution = weight[:, None] * factor * delta * params.efficiency[index]
     relative = (
         time[:, None] + travel_time(distance, params) + params.time_offset[index] - reference[index]
@@ -348,10 +348,10 @@ def _residual(params, shape_has_walls, weight, t_end, hit):
     """Expected photons that would undergo one more vertex on the traced segment."""
     _, rate_rayleigh, rate_mie, rate_total = interaction_rates(params)
     x = rate_total * t_end
-    safe_rate = jnp.where(x > 0, rate_total, 1.0)
-    interact_length = jnp.where(x > 0, -jnp.expm1(-x) / safe_rate, t_end)
+    safe_rate = where(x > 0, rate_total, 1.0)
+    interact_length = where(x > 0, -jnp.expm1(-x) / safe_rate, t_end)
     wall = params.wall_reflectivity if shape_has_walls else 0.0
-    reflect = jnp.where(hit, params.sensor_reflectivity, wall)
+    reflect = where(hit, params.sensor_reflectivity, wall)
     return jnp.sum(weight * ((rate_rayleigh + rate_mie) * interact_length + jnp.exp(-x) * reflect))
 
 
@@ -367,7 +367,7 @@ def _outgoing(params, config, kind, directions, normal, u, glass_direction):
     proposal_g = jnp.asarray(config.mie_proposal_asymmetry, directions.dtype)
     _, rate_rayleigh, rate_mie, _ = interaction_rates(params)
     rayleigh = u[2] < 0.5
-    cos_theta = jnp.where(
+    cos_theta = where(
         rayleigh,
         sample_rayleigh_cos(u[3], anisotropy),
         sample_henyey_greenstein_cos(u[3], proposal_g),
@@ -380,26 +380,26 @@ def _outgoing(params, config, kind, directions, normal, u, glass_direction):
     )
     scatter_direction = deflect(directions, cos_theta, 2.0 * math.pi * u[4])
     mirror = u[5] < 0.5
-    reflected = jnp.where(
+    reflected = where(
         mirror[:, None],
         specular_direction(directions, normal),
         lambertian_direction(normal, u[6], u[7]),
     )
     wall_weight = (
         params.wall_reflectivity
-        * jnp.where(mirror, params.wall_specular_fraction, 1.0 - params.wall_specular_fraction)
+        * where(mirror, params.wall_specular_fraction, 1.0 - params.wall_specular_fraction)
         / 0.5
     )
     is_scatter = (kind == _SCATTER)[:, None]
     is_wall = (kind == _WALL)[:, None]
-    directions = jnp.where(
-        is_scatter, scatter_direction, jnp.where(is_wall, reflected, glass_direction)
+    directions = where(
+        is_scatter, scatter_direction, where(is_wall, reflected, glass_direction)
     )
     directions = directions / jnp.linalg.norm(directions, axis=-1, keepdims=True)
-    factor = jnp.where(
+    factor = where(
         kind == _SCATTER,
         scatter_weight,
-        jnp.where(kind == _WALL, wall_weight, params.sensor_reflectivity),
+        where(kind == _WALL, wall_weight, params.sensor_reflectivity),
     )
     return directions, factor
 
@@ -433,7 +433,7 @@ def _specular_probes(params, shape, grid, sensors, reference, probes: _Probes, n
     origins, directions = probes.origins, probes.directions
     t_wall, _, on_sensor, alive = _trace(shape, grid, sensors, origins, directions)
     reaches_wall = alive & ~on_sensor
-    weight = jnp.where(
+    weight = where(
         reaches_wall,
         probes.weight
         * jnp.exp(-interaction_rates(params)[3] * t_wall)
@@ -538,11 +538,11 @@ def _leaving(outgoing, sensors, u_all, vertex, index, kind, directions):
     glass = (kind == _GLASS)[:, None]
 
     def one(u, drawn):
-        crossing = jnp.where(drawn, _disc_point(disc_normal, disc_radius, u[6], u[7]),
+        crossing = where(drawn, _disc_point(disc_normal, disc_radius, u[6], u[7]),
                              vertex - centre)
         dome = dome_normal(crossing, disc_normal, disc_radius)
         direction, factor = outgoing(u, specular_direction(directions, dome))
-        origin = jnp.where(glass & drawn, centre + crossing, vertex)
+        origin = where(glass & drawn, centre + crossing, vertex)
         return origin, direction, factor
 
     return jax.vmap(one, in_axes=(1, 0))(u_all, jnp.arange(u_all.shape[1]) > 0)
@@ -564,24 +564,24 @@ def _vertex_step(params, shape, grid, sensors, config, nee, vertex_key, probe_ke
     )
     directions = rays.directions
     t_end, index, hit, alive = _trace(shape, grid, sensors, rays.origins, directions)
-    weight = jnp.where(alive, rays.weight, 0.0)
+    weight = where(alive, rays.weight, 0.0)
     scatter = u[0] < 0.5
-    s = jnp.where(scatter, u[1] * t_end, t_end)
+    s = where(scatter, u[1] * t_end, t_end)
     weight = weight * jnp.exp(-interaction_rates(params)[3] * s) / 0.5
-    weight = jnp.where(scatter, weight * t_end, weight)
+    weight = where(scatter, weight * t_end, weight)
     vertex = rays.origins + s[:, None] * directions
     time = rays.time + travel_time(s, params)
-    kind = jnp.where(scatter, _SCATTER, jnp.where(hit, _GLASS, _WALL))
+    kind = where(scatter, _SCATTER, where(hit, _GLASS, _WALL))
     wall_normal = shape.inward_normal(vertex) if has_walls else -directions
     glass_normal = sensors.normals[index]
-    normal = jnp.where((kind == _GLASS)[:, None], glass_normal, wall_normal)
+    normal = where((kind == _GLASS)[:, None], glass_normal, wall_normal)
     if not has_walls:
-        weight = jnp.where(kind == _WALL, 0.0, weight)
+        weight = where(kind == _WALL, 0.0, weight)
     # a vertex on a disc (glass, or the wall right under it after the glass sent the
     # ray below the disc's plane) never lights that disc: it lies in the disc's
     # plane, but rounding can tilt it into view, where the exact solid angle is 2 pi
     still_on_disc = (kind == _WALL) & (s == 0)
-    own_disc = jnp.where(kind == _GLASS, index, jnp.where(still_on_disc, rays.on_disc, n))
+    own_disc = where(kind == _GLASS, index, where(still_on_disc, rays.on_disc, n))
     detected = nee(vertex, weight, time, kind, directions, normal, own_disc)
     u_all = u[:, None]
     if has_walls:  # probes: light of this vertex mirrored once by the wall into a sensor
@@ -613,9 +613,9 @@ def _moments(total, reference_time) -> tuple:
     variance 0 where there is no light (mean then equals the reference)."""
     charge, first, second = total
     positive = charge > 0
-    safe = jnp.where(positive, charge, 1.0)
-    mean = jnp.where(positive, first / safe, 0.0)
-    variance = jnp.where(positive, jnp.maximum(second / safe - mean * mean, 0.0), 0.0)
+    safe = where(positive, charge, 1.0)
+    mean = where(positive, first / safe, 0.0)
+    variance = where(positive, jnp.maximum(second / safe - mean * mean, 0.0), 0.0)
     return charge, mean + reference_time, variance
 
 
@@ -678,7 +678,7 @@ def indirect_light_jit(
     orders = jnp.arange(1, config.n_bounces + 1)
     rays, (detected, probes) = jax.lax.scan(step, rays, orders)  # detected: 3 x (K, N)
     t_end, _, hit, alive = _trace(shape, grid, sensors, rays.origins, rays.directions)
-    residual = _residual(params, shape.has_walls, jnp.where(alive, rays.weight, 0.0), t_end, hit)
+    residual = _residual(params, shape.has_walls, where(alive, rays.weight, 0.0), t_end, hit)
     total = list(detected)
     if shape.has_walls and config.n_bounces > 0:
         # specular probes of the source and of the vertices below the cap (whose mirror

@@ -57,7 +57,7 @@ import numpy as np
 
 from ..geometry.sensor_grid import grid_candidates_xyz
 from ..geometry.shapes import Box, Cylinder, Sphere
-from ..numerics import safe_sqrt
+from ..numerics import hypot, safe_sqrt, where
 from ..params import Params
 from ..pytree import pytree_dataclass
 from .optics import acceptance_at_cos, interaction_rates, travel_time
@@ -154,17 +154,17 @@ def circle_reflections(a, b, radius):
 
     def newton(psi):
         value, derivative = jax.jvp(slope, (psi,), (jnp.ones_like(psi),))
-        safe = jnp.where(derivative != 0, derivative, 1.0)
+        safe = where(derivative != 0, derivative, 1.0)
         return value, psi - value / safe, derivative != 0
 
     def safeguarded(_, state):
         low, high, f_low, psi = state
         value, candidate, usable = newton(psi)
         same_side = value * f_low > 0
-        low, high = jnp.where(same_side, psi, low), jnp.where(same_side, high, psi)
-        f_low = jnp.where(same_side, value, f_low)
+        low, high = where(same_side, psi, low), where(same_side, high, psi)
+        f_low = where(same_side, value, f_low)
         inside = usable & (candidate > low) & (candidate < high)
-        return low, high, f_low, jnp.where(inside, candidate, 0.5 * (low + high))
+        return low, high, f_low, where(inside, candidate, 0.5 * (low + high))
 
     state = (low, high, f_low, 0.5 * (low + high))
     psi = jax.lax.stop_gradient(jax.lax.fori_loop(0, NEWTON_STEPS, safeguarded, state)[3])
@@ -186,7 +186,7 @@ def follow_reflections(psi, a, b, radius):
             (psi,),
             (jnp.ones_like(psi),),
         )
-        return psi - value / jnp.where(derivative != 0, derivative, 1.0)
+        return psi - value / where(derivative != 0, derivative, 1.0)
 
     start = jax.lax.stop_gradient(
         jax.lax.fori_loop(0, FOLLOW_STEPS, lambda _, q: newton(q), jax.lax.stop_gradient(psi))
@@ -241,8 +241,8 @@ def _barrel_reflections(source, nodes, radius, half_height):
     psi, found = _disc_circle_reflections(a, (nodes[..., 0], nodes[..., 1]), radius)
     psi, found = psi.reshape(targets.shape[0], -1), found.reshape(targets.shape[0], -1)
     wall_x, wall_y = radius * jnp.cos(psi), radius * jnp.sin(psi)
-    l_in = jnp.hypot(wall_x - source[0], wall_y - source[1])
-    l_out = jnp.hypot(targets[:, 0:1] - wall_x, targets[:, 1:2] - wall_y)
+    l_in = hypot(wall_x - source[0], wall_y - source[1])
+    l_out = hypot(targets[:, 0:1] - wall_x, targets[:, 1:2] - wall_y)
     horizontal = l_in + l_out
     slope = (targets[:, 2:3] - source[2]) / horizontal
     wall_z = source[2] + slope * l_in
@@ -258,11 +258,11 @@ def _sphere_reflections(source, nodes, radius):
     source_norm = safe_sqrt(jnp.sum(source * source))  # finite gradient at the centre
     off_centre = source_norm > 1e-9 * radius
     node_axis = nodes / jnp.linalg.norm(nodes, axis=-1, keepdims=True)
-    first = jnp.where(off_centre, source / jnp.where(off_centre, source_norm, 1.0), node_axis)
+    first = where(off_centre, source / where(off_centre, source_norm, 1.0), node_axis)
     across = nodes - jnp.sum(nodes * first, axis=-1, keepdims=True) * first
     across_norm = safe_sqrt(jnp.sum(across * across, axis=-1, keepdims=True))  # 0: collinear
     spare = jax.vmap(jax.vmap(plane_basis))(first)[0]  # any direction across ``first``
-    second = jnp.where(
+    second = where(
         across_norm > 1e-9 * radius, across / jnp.maximum(across_norm, 1e-30), spare
     )
     a = (jnp.sum(source * first, axis=-1), jnp.sum(source * second, axis=-1))
@@ -276,7 +276,7 @@ def _sphere_reflections(source, nodes, radius):
 
 def _guarded(x, floor=1e-9):
     """x with |x| raised to ``floor`` (sign kept): a denominator that is never 0."""
-    return jnp.where(jnp.abs(x) < floor, jnp.where(x < 0, -floor, floor), x)
+    return where(jnp.abs(x) < floor, where(x < 0, -floor, floor), x)
 
 
 def focusing_ratio(shape, source, wall_points, targets):
@@ -286,8 +286,8 @@ def focusing_ratio(shape, source, wall_points, targets):
     ``FOCUSING_LIMIT`` (near caustics, where a quadrature node rule is poor) are left
     to the rays of ``indirect.py``; the rest are done here."""
     if isinstance(shape, Cylinder):
-        l_in = jnp.hypot(wall_points[..., 0] - source[..., 0], wall_points[..., 1] - source[..., 1])
-        l_out = jnp.hypot(
+        l_in = hypot(wall_points[..., 0] - source[..., 0], wall_points[..., 1] - source[..., 1])
+        l_out = hypot(
             targets[..., 0] - wall_points[..., 0], targets[..., 1] - wall_points[..., 1]
         )
         towards = (wall_points[..., 0] - source[..., 0]) * wall_points[..., 0] + (
@@ -296,9 +296,9 @@ def focusing_ratio(shape, source, wall_points, targets):
         cos_incidence = _guarded(towards / _guarded(l_in * shape.radius))
         horizontal = _guarded(l_in + l_out)
         tangential = horizontal - 2.0 * l_in * l_out / (shape.radius * cos_incidence)
-        rho = jnp.hypot(wall_points[..., 0], wall_points[..., 1])
+        rho = hypot(wall_points[..., 0], wall_points[..., 1])
         on_cap = 0.5 * shape.height - jnp.abs(wall_points[..., 2]) < shape.radius - rho
-        return jnp.where(on_cap, 1.0, jnp.abs(tangential) / horizontal)
+        return where(on_cap, 1.0, jnp.abs(tangential) / horizontal)
     if isinstance(shape, Sphere):
         l_in = jnp.linalg.norm(wall_points - source, axis=-1)
         l_out = jnp.linalg.norm(targets - wall_points, axis=-1)
@@ -365,7 +365,7 @@ def disc_to_wall(points, valid, radius):
     sin_k = jnp.asarray(y[1:] / rho_node, points.dtype)[None, :, None, None]
     scale = 1.0 / (3.0 * rho_node * radius)[:, None, None]
     complete = jnp.all(valid, axis=1)[..., None]  # (N, M, 1)
-    along = [jnp.where(complete, jnp.sum(offsets * c, axis=1) * scale, 0.0)
+    along = [where(complete, jnp.sum(offsets * c, axis=1) * scale, 0.0)
              for c in (cos_k, sin_k)]
     return jnp.stack(along, axis=-2)
 
@@ -390,7 +390,7 @@ def _nearby_discs(grid, sensor_positions, sensor_normals, sensor_radius, centre)
     (..., K) bool, centres and normals (3-tuples of (..., K)), radii (..., K) m)."""
     candidates = grid_candidates_xyz(grid, tuple(centre[..., k] for k in range(3)))
     listed = candidates >= 0
-    index = jnp.where(listed, candidates, 0)
+    index = where(listed, candidates, 0)
     return (listed, tuple(sensor_positions[:, k][index] for k in range(3)),
             tuple(sensor_normals[:, k][index] for k in range(3)), sensor_radius[index])
 
@@ -426,7 +426,7 @@ def _principal_axes(spans):
     # half-axes themselves (nearly orthogonal and equal there), with safe arguments
     finfo = jnp.finfo(a.dtype)
     round_ = (jnp.abs(b) + jnp.abs(a - c)) <= 10.0 * math.sqrt(finfo.eps) * (a + c) + finfo.tiny
-    angle = 0.5 * jnp.arctan2(jnp.where(round_, 0.0, 2.0 * b), jnp.where(round_, 1.0, a - c))
+    angle = 0.5 * jnp.arctan2(where(round_, 0.0, 2.0 * b), where(round_, 1.0, a - c))
     major = jnp.cos(angle)[..., None] * s1 + jnp.sin(angle)[..., None] * s2
     minor = -jnp.sin(angle)[..., None] * s1 + jnp.cos(angle)[..., None] * s2
     return (tuple(major[..., k] for k in range(3)), tuple(minor[..., k] for k in range(3)))
@@ -469,17 +469,17 @@ def _ellipses_covered(discs, centre, spans):
     size = alpha + g22
     solid = ((size > SOLID_SIZE**2) & (det > SOLID_ASPECT * size * size)
              & (det * EXTENT_LIMIT**2 > alpha))
-    safe_det = jnp.where(solid, det, 1.0)
+    safe_det = where(solid, det, 1.0)
     on_major = sum(q * m for q, m in zip(across, major, strict=True))
     on_minor = sum(q * m for q, m in zip(across, minor, strict=True))
-    middle = jnp.where(solid, -(alpha * on_minor - mixed * on_major) / safe_det, 0.0)
-    extent = safe_sqrt(jnp.where(solid, alpha / safe_det, 1.0))
-    low = jnp.where(solid, jnp.maximum(middle - extent, -1.0), -1.0)
-    high = jnp.where(solid, jnp.minimum(middle + extent, 1.0), 1.0)
+    middle = where(solid, -(alpha * on_minor - mixed * on_major) / safe_det, 0.0)
+    extent = safe_sqrt(where(solid, alpha / safe_det, 1.0))
+    low = where(solid, jnp.maximum(middle - extent, -1.0), -1.0)
+    high = where(solid, jnp.minimum(middle + extent, 1.0), 1.0)
     centre_w, half_w = 0.5 * (low + high), jnp.maximum(0.5 * (high - low), 0.0)
     # a major half-axis below 1e-4 radii across the disc: each chord is a point
     tiny = jnp.asarray(1e-8, alpha.dtype)
-    safe_alpha = jnp.where(alpha > tiny, alpha, 1.0)  # the point-like branch is used below
+    safe_alpha = where(alpha > tiny, alpha, 1.0)  # the point-like branch is used below
     # the chords on a trailing axis (one fused loop; the graph does not grow with CHORDS)
     theta = -0.5 * math.pi + (np.arange(CHORDS) + 0.5) * math.pi / CHORDS
     sin_theta = jnp.asarray(np.sin(theta), alpha.dtype)
@@ -496,11 +496,11 @@ def _ellipses_covered(discs, centre, spans):
     root = safe_sqrt(beta * beta - alpha * gamma)
     inside = (jnp.minimum((-beta + root) / safe_alpha, reach)
               - jnp.maximum((-beta - root) / safe_alpha, -reach))
-    point_like = jnp.where(gamma < 0, 2.0 * reach, 0.0)  # a chord of no length
-    length = jnp.where(alpha > tiny, jnp.maximum(inside, 0.0), point_like)
+    point_like = where(gamma < 0, 2.0 * reach, 0.0)  # a chord of no length
+    length = where(alpha > tiny, jnp.maximum(inside, 0.0), point_like)
     fraction = jnp.sum(length * half_w * chord_weight, axis=-1)
     on_plane = listed & (jnp.abs(height) < ON_DISC)
-    return jnp.minimum(jnp.sum(jnp.where(on_plane, fraction, 0.0), axis=-1), 1.0)
+    return jnp.minimum(jnp.sum(where(on_plane, fraction, 0.0), axis=-1), 1.0)
 
 
 def uncovered_share(near_grid, sensor_positions, sensor_normals, sensor_radius, points, valid):
@@ -528,13 +528,13 @@ def uncovered_share(near_grid, sensor_positions, sensor_normals, sensor_radius, 
     discs = _nearby_discs(near_grid, sensor_positions, sensor_normals, sensor_radius, lookup)
     # only the discs nearest to the lookup point can cover much of the patch
     _, _, distance = _across(discs, tuple(lookup[..., k, None] for k in range(3)))
-    _, nearest = jax.lax.top_k(-jnp.where(discs[0], distance, jnp.inf), NEAREST_DISCS)
+    _, nearest = jax.lax.top_k(-where(discs[0], distance, jnp.inf), NEAREST_DISCS)
     discs = jax.tree.map(lambda x: jnp.take_along_axis(x, nearest, axis=-1), discs)
     whole = _ellipses_covered(discs, lookup, spans)  # (N, M); complete slots: lookup = P_0
     nodes = _points_covered(jax.tree.map(lambda x: x[:, None], discs),
                             tuple(points[..., k] for k in range(3)))  # (N, Q, M)
     complete = jnp.all(valid, axis=1)  # (N, M)
-    return 1.0 - jnp.where(complete[:, None], whole[:, None], nodes.astype(whole.dtype))
+    return 1.0 - where(complete[:, None], whole[:, None], nodes.astype(whole.dtype))
 
 
 @pytree_dataclass
@@ -585,7 +585,7 @@ def mirror_paths(shape, grid, sensor_positions, sensor_normals, sensor_radius, s
     points, valid = reflection_points(shape, source.position, nodes)
     # slots without a reflection get a harmless point inside (finite values and gradients)
     harmless = 0.5 * (source.position + targets)[:, None, :]
-    points = jnp.where(valid[..., None], points, harmless)
+    points = where(valid[..., None], points, harmless)
     focusing = focusing_ratio(shape, source.position, points, targets[:, None])
 
     incoming = points - source.position
@@ -603,7 +603,7 @@ def mirror_paths(shape, grid, sensor_positions, sensor_normals, sensor_radius, s
     counts = counts & (jax.lax.stop_gradient(focusing) >= FOCUSING_LIMIT)
 
     path = l_in + l_out
-    safe_tube = jnp.where(counts, focusing * path * path, 1.0)  # ray-tube area per sr
+    safe_tube = where(counts, focusing * path * path, 1.0)  # ray-tube area per sr
     weight = (
         source.emission_density(emission)
         * jnp.maximum(cos_in, 0.0)
@@ -611,7 +611,7 @@ def mirror_paths(shape, grid, sensor_positions, sensor_normals, sensor_radius, s
         * node_area.reshape(-1)[:, None]
         * uncovered
     )
-    return MirrorPaths(weight=jnp.where(counts, weight, 0.0), cos_in=cos_in, path=path)
+    return MirrorPaths(weight=where(counts, weight, 0.0), cos_in=cos_in, path=path)
 
 
 def mirror_light(params: Params, paths: MirrorPaths, source, reference_time):

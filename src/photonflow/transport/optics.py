@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 
 from ..constants import SPEED_OF_LIGHT
+from ..numerics import clip, where
 from ..params import Params
 
 #: Phase-function anisotropy a of Rayleigh scattering in water: (1 - d)/(1 + d) for
@@ -97,7 +98,7 @@ def sample_rayleigh_cos(u, anisotropy, iterations: int = 12):
     def newton(_, mu):
         value = mu + anisotropy * mu**3 / 3.0 - target
         slope = 1.0 + anisotropy * mu**2
-        return jnp.clip(mu - value / slope, -1.0, 1.0)
+        return clip(mu - value / slope, -1.0, 1.0)
 
     return jax.lax.fori_loop(0, iterations, newton, 2.0 * u - 1.0)
 
@@ -112,22 +113,29 @@ def henyey_greenstein_density(cos_theta, g):
 def sample_henyey_greenstein_cos(u, g):
     """cos(theta) of Henyey-Greenstein scattering from a uniform u (closed-form inverse)."""
     small = jnp.abs(g) < 1e-4
-    safe_g = jnp.where(small, 1e-4, g)
+    safe_g = where(small, 1e-4, g)
     ratio = (1.0 - safe_g * safe_g) / (1.0 - safe_g + 2.0 * safe_g * u)
     mu = (1.0 + safe_g * safe_g - ratio * ratio) / (2.0 * safe_g)
-    return jnp.clip(jnp.where(small, 2.0 * u - 1.0, mu), -1.0, 1.0)
+    return clip(where(small, 2.0 * u - 1.0, mu), -1.0, 1.0)
 
 
 def orthonormal_basis(direction):
     """Two unit vectors (..., 3) perpendicular to ``direction`` and to each other."""
-    helper = jnp.where(
+    helper = where(
         (jnp.abs(direction[..., 2]) < 0.9)[..., None],
         jnp.array([0.0, 0.0, 1.0], direction.dtype),
         jnp.array([1.0, 0.0, 0.0], direction.dtype),
     )
-    e1 = jnp.cross(direction, helper)
-    e1 = e1 / jnp.linalg.norm(e1, axis=-1, keepdims=True)
-    return e1, jnp.cross(direction, e1)
+    components = _components(direction)
+    e1 = jnp.stack(cross_xyz(components, _components(helper)), axis=-1)
+    e1 = e1 / jnp.sqrt(jnp.sum(e1 * e1, axis=-1, keepdims=True))
+    return e1, jnp.stack(cross_xyz(components, _components(e1)), axis=-1)
+
+
+def _components(vectors):
+    """(..., 3) vectors as a 3-tuple of (...) arrays (inline; ``jnp.cross`` and
+    ``jnp.linalg.norm`` are nested jitted programs)."""
+    return vectors[..., 0], vectors[..., 1], vectors[..., 2]
 
 
 def deflect(direction, cos_theta, phi):
@@ -136,7 +144,7 @@ def deflect(direction, cos_theta, phi):
     sin_squared = 1.0 - cos_theta**2
     inside = sin_squared > 0
     # sqrt with a zero (not infinite) derivative at sin = 0, so gradients stay finite
-    sin_theta = jnp.where(inside, jnp.sqrt(jnp.where(inside, sin_squared, 1.0)), 0.0)
+    sin_theta = where(inside, jnp.sqrt(where(inside, sin_squared, 1.0)), 0.0)
     return (
         cos_theta[..., None] * direction
         + (sin_theta * jnp.cos(phi))[..., None] * e1
@@ -166,7 +174,7 @@ def dome_normal(offset, normal, radius):
     rho2 = jnp.sum(in_plane * in_plane, axis=-1, keepdims=True)
     r = radius[..., None]
     inside = r * r - rho2 > 0
-    height = jnp.where(inside, jnp.sqrt(jnp.where(inside, r * r - rho2, 1.0)), 0.0)
+    height = where(inside, jnp.sqrt(where(inside, r * r - rho2, 1.0)), 0.0)
     dome = (in_plane + height * normal) / r
     return dome / jnp.linalg.norm(dome, axis=-1, keepdims=True)
 
@@ -184,7 +192,7 @@ def dome_reflection_density(direction_in, direction_out, normal):
     h_n = jnp.sum(half * normal, axis=-1) / norm
     h_out = jnp.sum(half * direction_out, axis=-1) / norm
     valid = (h_n > 0) & (h_out > 0)
-    return jnp.where(valid, h_n / (4.0 * math.pi * jnp.where(valid, h_out, 1.0)), 0.0)
+    return where(valid, h_n / (4.0 * math.pi * where(valid, h_out, 1.0)), 0.0)
 
 
 #: Incidence angles (rad) of the ``angular_acceptance`` table: 0, 10, ..., 90 degrees.
@@ -204,7 +212,7 @@ def acceptance_at_cos(table, cos_incidence):
     value = table[9]
     for i in range(9):
         upper, lower = _ACCEPTANCE_COS[i], _ACCEPTANCE_COS[i + 1]
-        ramp = jnp.clip((cos_incidence - lower) * (1.0 / (upper - lower)), 0.0, 1.0)
+        ramp = clip((cos_incidence - lower) * (1.0 / (upper - lower)), 0.0, 1.0)
         value = value + (table[i] - table[i + 1]) * ramp
     return value
 
@@ -214,8 +222,8 @@ def dome_reflection_density_cos(cos_turn, cos_out, in_normal):
     and i . n (``in_normal``), u the outgoing and i the incoming direction, n the disc
     normal: (u . n - i . n) / (4 pi (1 - u . i)) where u . n > i . n, else 0."""
     valid = (cos_out > in_normal) & (cos_turn < 1.0)
-    safe = jnp.where(valid, 1.0 - cos_turn, 1.0)
-    return jnp.where(valid, (cos_out - in_normal) / (4.0 * math.pi * safe), 0.0)
+    safe = where(valid, 1.0 - cos_turn, 1.0)
+    return where(valid, (cos_out - in_normal) / (4.0 * math.pi * safe), 0.0)
 
 
 # ---- the same on x, y, z components (structure of arrays) -------------------------------
@@ -244,13 +252,13 @@ def deflect_xyz(direction, cos_theta, phi):
     """
     use_z = jnp.abs(direction[2]) < 0.9
     zero, one = jnp.zeros_like(direction[2]), jnp.ones_like(direction[2])
-    u = cross_xyz(direction, (jnp.where(use_z, zero, one), zero, jnp.where(use_z, one, zero)))
+    u = cross_xyz(direction, (where(use_z, zero, one), zero, where(use_z, one, zero)))
     v = cross_xyz(direction, u)
     length = jnp.sqrt(dot_xyz(u, u))
     sin_squared = 1.0 - cos_theta**2
     inside = sin_squared > 0
     # sqrt with a zero (not infinite) derivative at sin = 0, so gradients stay finite
-    sin_theta = jnp.where(inside, jnp.sqrt(jnp.where(inside, sin_squared, 1.0)), 0.0)
+    sin_theta = where(inside, jnp.sqrt(where(inside, sin_squared, 1.0)), 0.0)
     along_u = sin_theta * jnp.cos(phi) / length
     along_v = sin_theta * jnp.sin(phi) / length
     return tuple(
@@ -271,7 +279,7 @@ def dome_normal_xyz(offset, normal, radius):
     in_plane = tuple(q - along * n for q, n in zip(offset, normal, strict=True))
     rho2 = dot_xyz(in_plane, in_plane)
     inside = radius * radius - rho2 > 0
-    height = jnp.where(inside, jnp.sqrt(jnp.where(inside, radius * radius - rho2, 1.0)), 0.0)
+    height = where(inside, jnp.sqrt(where(inside, radius * radius - rho2, 1.0)), 0.0)
     dome = tuple((q + height * n) / radius for q, n in zip(in_plane, normal, strict=True))
     length = jnp.sqrt(dot_xyz(dome, dome))
     return tuple(c / length for c in dome)

@@ -54,7 +54,7 @@ from ..errors import ConfigError, format_value
 from ..geometry.detector import Detector
 from ..geometry.sensor_grid import SensorGrid, first_sensor_hit_xyz
 from ..geometry.shapes import xyz
-from ..numerics import strict_array
+from ..numerics import clip, strict_array, where
 from ..params import Params, validate_params
 from ..response import DEFAULT_CONFIG
 from ..sources import (
@@ -223,7 +223,7 @@ def _bulk_turn(u_process, u_cos, rates, params, anisotropy):
     probability rate_abs / rate_total, else Rayleigh or Mie by their rate ratio."""
     absorption, rayleigh, _, total = rates
     pick = u_process * total
-    cos_theta = jnp.where(
+    cos_theta = where(
         pick < absorption + rayleigh,
         sample_rayleigh_cos(u_cos, anisotropy),
         sample_henyey_greenstein_cos(u_cos, params.mie_g),
@@ -238,7 +238,7 @@ def _sensor_response(u, direction, point, sensor, sensors, params):
     positions, normals, radius = sensors
     normal = tuple(normals[:, k][sensor] for k in range(3))
     centre = tuple(positions[:, k][sensor] for k in range(3))
-    cos_incidence = jnp.clip(-dot_xyz(direction, normal), -1.0, 1.0)
+    cos_incidence = clip(-dot_xyz(direction, normal), -1.0, 1.0)
     acceptance = acceptance_at_cos(params.angular_acceptance, cos_incidence)
     p_detect = params.quantum_efficiency * params.efficiency[sensor] * acceptance
     detected = u < p_detect
@@ -261,22 +261,22 @@ def _new_direction(direction, bulk, cos_scatter, on_sensor, dome, specular, wall
     inward ``wall`` normal) at azimuth 2 pi u_phi, or a mirror image (about the sensor's
     ``dome`` normal, or the wall's for a specular reflection)."""
     turns = bulk | (~on_sensor & ~specular)
-    axis = tuple(jnp.where(bulk, d, n) for d, n in zip(direction, wall, strict=True))
-    cos_theta = jnp.where(bulk, cos_scatter, jnp.sqrt(u_cos))
+    axis = tuple(where(bulk, d, n) for d, n in zip(direction, wall, strict=True))
+    cos_theta = where(bulk, cos_scatter, jnp.sqrt(u_cos))
     turned = deflect_xyz(axis, cos_theta, 2.0 * math.pi * u_phi)
-    mirror = tuple(jnp.where(on_sensor, m, n) for m, n in zip(dome, wall, strict=True))
+    mirror = tuple(where(on_sensor, m, n) for m, n in zip(dome, wall, strict=True))
     mirrored = specular_direction_xyz(direction, mirror)
-    new = tuple(jnp.where(turns, t, m) for t, m in zip(turned, mirrored, strict=True))
+    new = tuple(where(turns, t, m) for t, m in zip(turned, mirrored, strict=True))
     length = jnp.sqrt(dot_xyz(new, new))
     return tuple(c / length for c in new)
 
 
 def _fate(bulk, absorbed, on_sensor, detected, sensor_reflected, wall_reflected, has_walls):
     """Status code after a segment ends: ``ALIVE`` for a scattering or a reflection."""
-    at_wall = jnp.where(wall_reflected, ALIVE, ABSORBED_WALL if has_walls else ESCAPED)
-    at_sensor = jnp.where(detected, DETECTED, jnp.where(sensor_reflected, ALIVE, ABSORBED_SENSOR))
-    surface = jnp.where(on_sensor, at_sensor, at_wall)
-    return jnp.where(bulk, jnp.where(absorbed, ABSORBED_BULK, ALIVE), surface)
+    at_wall = where(wall_reflected, ALIVE, ABSORBED_WALL if has_walls else ESCAPED)
+    at_sensor = where(detected, DETECTED, where(sensor_reflected, ALIVE, ABSORBED_SENSOR))
+    surface = where(on_sensor, at_sensor, at_wall)
+    return where(bulk, where(absorbed, ABSORBED_BULK, ALIVE), surface)
 
 
 def _step_function(shape, config, sensors, grid, params):
@@ -298,17 +298,17 @@ def _step_function(shape, config, sensors, grid, params):
             grid, positions, normals, radius, position, direction, t_wall
         )
         on_sensor = hit >= 0
-        t_surface = jnp.where(on_sensor, t_hit, t_wall)
-        free_path = -jnp.log1p(-u_free) / jnp.where(total > 0, total, 1.0)
-        bulk = jnp.where(total > 0, free_path, jnp.inf) < t_surface
-        distance = jnp.where(bulk, free_path, t_surface)
+        t_surface = where(on_sensor, t_hit, t_wall)
+        free_path = -jnp.log1p(-u_free) / where(total > 0, total, 1.0)
+        bulk = where(total > 0, free_path, jnp.inf) < t_surface
+        distance = where(bulk, free_path, t_surface)
         point = tuple(p + distance * d for p, d in zip(position, direction, strict=True))
 
         absorbed, cos_scatter = _bulk_turn(
             u_process, u_cos, rates, params, config.rayleigh_anisotropy
         )
         detected, sensor_reflected, dome = _sensor_response(
-            u_process, direction, point, jnp.where(on_sensor, hit, 0), sensors, params
+            u_process, direction, point, where(on_sensor, hit, 0), sensors, params
         )
         wall_reflected, specular = _wall_response(u_process, params)
         if not has_walls:  # the world boundary of an open medium: nothing comes back
@@ -323,8 +323,8 @@ def _step_function(shape, config, sensors, grid, params):
             bulk, absorbed, on_sensor, detected, sensor_reflected, wall_reflected, has_walls
         )
         capped = (outcome == ALIVE) & (photons.vertices >= config.n_bounces)
-        status = jnp.where(capped, CAPPED, outcome)
-        nudge = jnp.where(bulk, 0.0, NUDGE)  # reflected photons leave the surface
+        status = where(capped, CAPPED, outcome)
+        nudge = where(bulk, 0.0, NUDGE)  # reflected photons leave the surface
         position = tuple(p + nudge * d for p, d in zip(point, new_dir, strict=True))
         # Written unconditionally: what a photon that ended carries is never read again.
         return PhotonState(
@@ -334,7 +334,7 @@ def _step_function(shape, config, sensors, grid, params):
             path=photons.path + distance,
             vertices=photons.vertices + 1,
             status=status,
-            sensor=jnp.where(status == DETECTED, hit, -1),
+            sensor=where(status == DETECTED, hit, -1),
         )
 
     return step
@@ -349,7 +349,7 @@ def _launch_photons(shape, position, direction, n_active, batch: int, dtype) -> 
         wall=_wall_distance(shape, position, direction),
         path=jnp.zeros(batch, dtype),
         vertices=jnp.zeros(batch, jnp.int32),
-        status=jnp.where(jnp.arange(batch) < n_active, ALIVE, UNUSED).astype(jnp.int32),
+        status=where(jnp.arange(batch) < n_active, ALIVE, UNUSED).astype(jnp.int32),
         sensor=jnp.full(batch, -1, jnp.int32),
     )
 
@@ -433,7 +433,7 @@ def _alive_lanes(alive, size: int):
     rank = jax.lax.associative_scan(jnp.add, alive.astype(jnp.int32))
     lanes = (
         jnp.full(size, n, jnp.int32)
-        .at[jnp.where(alive, rank - 1, size)]
+        .at[where(alive, rank - 1, size)]
         .set(jnp.arange(n, dtype=jnp.int32), mode="drop")
     )
     return lanes, rank[-1]

@@ -44,6 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..numerics import clip, where
 from ..sources import DiffuserSource, IsotropicSource, LaserSource
 
 #: Default number of rim nodes of the trapezoid rule.
@@ -56,7 +57,7 @@ def plane_basis(normal):
     Branch-free construction of Duff et al., JCGT 6(1), 2017 ("Building an orthonormal
     basis, revisited").
     """
-    sign = jnp.where(normal[2] >= 0, 1.0, -1.0).astype(normal.dtype)
+    sign = where(normal[2] >= 0, 1.0, -1.0).astype(normal.dtype)
     a = -1.0 / (sign + normal[2])
     b = normal[0] * normal[1] * a
     u = jnp.stack([1.0 + sign * normal[0] ** 2 * a, sign * b, -sign * normal[0]])
@@ -196,10 +197,10 @@ def _quadratic_zeros(f0, f_half, f1):
     a = 2.0 * (f1 - 2.0 * f_half + f0)
     b = 4.0 * f_half - 3.0 * f0 - f1
     root = jnp.sqrt(jnp.maximum(b * b - 4.0 * a * f0, 0.0))
-    q = -0.5 * (b + jnp.where(b >= 0, root, -root))
-    first = jnp.where(a != 0, q / jnp.where(a != 0, a, 1.0), 2.0)
-    second = jnp.where(q != 0, f0 / jnp.where(q != 0, q, 1.0), 2.0)
-    first, second = jnp.clip(first, 0.0, 1.0), jnp.clip(second, 0.0, 1.0)
+    q = -0.5 * (b + where(b >= 0, root, -root))
+    first = where(a != 0, q / where(a != 0, a, 1.0), 2.0)
+    second = where(q != 0, f0 / where(q != 0, q, 1.0), 2.0)
+    first, second = clip(first, 0.0, 1.0), clip(second, 0.0, 1.0)
     return jnp.minimum(first, second), jnp.maximum(first, second)
 
 
@@ -288,7 +289,7 @@ def disc_cone_solid_angle(
             x, y, z = (centre_xyz[k] + cos_t * u_xyz[k] + sin_t * v_xyz[k] for k in range(3))
             perp_sq = x * x + y * y
             length = jnp.sqrt(perp_sq + z * z)
-            rim_versine = jnp.where(
+            rim_versine = where(
                 z > 0, perp_sq / (length * (length + jnp.maximum(z, 0.0))), (length - z) / length
             )
             turn = turn_mean + cos_t * turn_cos + sin_t * turn_sin
@@ -307,11 +308,11 @@ def disc_cone_solid_angle(
         local = starts[..., None] + lengths[..., None] * gauss_nodes  # (n_intervals, 3, m)
         weights = step * lengths[..., None] * gauss_weights
         excess, turn, perp_sq = rim_terms((base[:, None, None] + local) * step)
-        part = jnp.where(use_outside, excess, -excess)
+        part = where(use_outside, excess, -excess)
         inside = part > 0
-        integrand = jnp.where(inside, part / jnp.where(inside, perp_sq, 1.0), 0.0) * turn
+        integrand = where(inside, part / where(inside, perp_sq, 1.0), 0.0) * turn
         contour = jnp.sign(jnp.dot(n, to_centre)) * jnp.sum(weights * integrand)
-        return jnp.where(use_outside, omega_one - contour, -contour)
+        return where(use_outside, omega_one - contour, -contour)
 
     return jax.vmap(one)(centre, normal, radius, omega).reshape(batch)
 
@@ -327,7 +328,7 @@ def _use_outside_form(to_centre, radius, axis, opening_angle, normal):
     sphere around the disc: (A) when theta_c < max(alpha, 2 rho) and theta_c < pi - 2 rho.
     """
     distance = jnp.sqrt(jnp.sum(to_centre * to_centre))
-    cos_centre = jnp.clip(jnp.dot(to_centre, axis) / distance, -1.0, 1.0)
+    cos_centre = clip(jnp.dot(to_centre, axis) / distance, -1.0, 1.0)
     centre_angle = jnp.arccos(cos_centre)
     spread = jnp.arcsin(jnp.minimum(radius / distance, 1.0))
     by_angle = (centre_angle < jnp.maximum(opening_angle, 2.0 * spread)) & (
@@ -344,7 +345,7 @@ def _sees_disc(to_centre, normal, radius, direction):
     height = jnp.dot(to_centre, normal)
     along = jnp.dot(direction, normal)
     meets = height * along > 0
-    t = height / jnp.where(meets, along, 1.0)
+    t = height / where(meets, along, 1.0)
     miss = t * direction - to_centre
     return meets & (jnp.sum(miss * miss) < radius * radius)
 
@@ -399,7 +400,7 @@ def disc_solid_angle_local(in_plane_sq, height, radius, n_nodes: int = DEFAULT_N
     stay finite on the axis.
     """
     positive = in_plane_sq > 0
-    rho = jnp.where(positive, jnp.sqrt(jnp.where(positive, in_plane_sq, 1.0)), 0.0)
+    rho = where(positive, jnp.sqrt(where(positive, in_plane_sq, 1.0)), 0.0)
     mean_sq = in_plane_sq + height * height + radius * radius
     mean_distance = jnp.sqrt(mean_sq)  # R0
     # the half-rim nodes on a trailing axis: one fused loop with a reduction, and an
