@@ -108,3 +108,12 @@ def test_xla_flag_rules(monkeypatch):
     monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: True)  # too late
     assert not xla_settings.configure_xla_flags()
     assert os.environ["XLA_FLAGS"] == ""
+
+
+def test_the_calibration_is_imported_when_first_used():
+    code = ("import sys, photonflow as pf; before = 'photonflow.calibration' in sys.modules;"
+            " f = pf.calibrate; print(before, 'photonflow.calibration' in sys.modules,"
+            " f is pf.calibration.calibrate, 'calibrate' in dir(pf))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, check=True)
+    assert done.stdout.split() == ["False", "True", "True", "True"]
