@@ -33,7 +33,7 @@ from .transport import TransportConfig, expected, expected_function, sample, sam
 configure_from_environment()  # persistent compilation cache (photonflow.compilation_cache)
 
 #: Names imported when first used: the calibration (and what it imports) is not needed
-#: to simulate or predict, and importing it costs ~0.1 s of every process's start.
+#: to simulate or predict, and importing it costs ~0.05 s of every process's start.
 _LAZY = {"CalibrationResult": "calibration", "calibrate": "calibration",
          "load_params": "calibration"}
 
