@@ -50,7 +50,7 @@ def presets_step() -> Step:
     """Print the table of detector presets."""
 
     def run(context: DemoContext) -> StepResult:
-        from .cli import preset_rich_table
+        from .terminal_tables import preset_rich_table
 
         table = preset_rich_table()
         context.console.print(table)
@@ -162,9 +162,9 @@ def optics_calibration_step(name: str) -> Step:
         import numpy as np
 
         from .calibration import calibrate
-        from .cli import calibration_rich_table
         from .config import load_setup
         from .sources import IsotropicSource, LaserSource
+        from .terminal_tables import calibration_rich_table
         from .transport.optics import TransportConfig
         from .transport.pseudo_data import sample_events
         from .viz.calibration_report import plot_calibration_report
