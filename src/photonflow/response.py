@@ -26,13 +26,11 @@ from scipy.special import ndtr, ndtri
 from .errors import ConfigError, format_value
 from .io.events import Event, Truth, make_event
 from .params import Params
-from .transport.optics import TransportConfig
+from .transport.optics import DEFAULT_CONFIG, TransportConfig
 
 if TYPE_CHECKING:
     from .transport.sampled import PhotonTally
 
-#: The default ``TransportConfig`` (readout window -100..900 ns, no threshold).
-DEFAULT_CONFIG = TransportConfig()
 
 
 def as_generator(key_or_seed) -> np.random.Generator:

@@ -73,6 +73,10 @@ class TransportConfig:
     specular_probes: int = 8
 
 
+#: The default ``TransportConfig`` (readout window -100..900 ns, no threshold).
+DEFAULT_CONFIG = TransportConfig()
+
+
 def interaction_rates(params: Params):
     """Bulk rates (1/m): (absorption, Rayleigh, Mie, total). ``inf`` lengths give 0."""
     absorption = 1.0 / params.absorption_length

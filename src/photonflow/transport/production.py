@@ -25,8 +25,7 @@ from ..geometry.detector import Detector
 from ..io.events import Event
 from ..params import Params
 from ..progress import with_progress
-from ..response import DEFAULT_CONFIG
-from .optics import TransportConfig
+from .optics import DEFAULT_CONFIG, TransportConfig
 from .pseudo_data import sample_events
 
 #: Blocks kept in flight per worker (bounds the parent's memory for out-of-order blocks).

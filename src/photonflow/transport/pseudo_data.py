@@ -20,9 +20,9 @@ from ..geometry.detector import Detector
 from ..io.events import Event, Truth
 from ..params import Params, validate_params
 from ..progress import with_progress
-from ..response import DEFAULT_CONFIG, photoelectrons_to_event
+from ..response import photoelectrons_to_event
 from ..sources import DiffuserSource, IsotropicSource, LaserSource, check_source
-from .optics import TransportConfig
+from .optics import DEFAULT_CONFIG, TransportConfig
 from .sampled import (
     check_config,
     check_seed,

@@ -56,7 +56,6 @@ from ..geometry.sensor_grid import SensorGrid, first_sensor_hit_xyz
 from ..geometry.shapes import xyz
 from ..numerics import clip, strict_array, where
 from ..params import Params, validate_params
-from ..response import DEFAULT_CONFIG
 from ..sources import (
     DIRECTION_TOLERANCE,
     check_source,
@@ -64,6 +63,7 @@ from ..sources import (
 from .emission import sample_directions
 from .indirect import sensor_grid_for
 from .optics import (
+    DEFAULT_CONFIG,
     TransportConfig,
     acceptance_at_cos,
     deflect_xyz,
