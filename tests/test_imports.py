@@ -92,3 +92,11 @@ def test_the_circle_check_finds_a_circle():
 @pytest.mark.parametrize("name", sorted(_modules()))
 def test_every_module_imports(name):
     importlib.import_module(name)
+
+
+def test_public_names_are_sorted_and_all_resolve():
+    import photonflow
+
+    assert list(photonflow.__all__) == sorted(photonflow.__all__)
+    for name in photonflow.__all__:
+        assert getattr(photonflow, name) is not None
