@@ -165,8 +165,8 @@ HANDOVER_SIGMA = 1.0
 
 
 #: Independent ray sets over which the independent-ray score's weights J_b are averaged
-#: once by default (``calibrate(jacobian_sets=)``): on SK this cuts the optics' spread by
-#: a third against a fresh set per step and costs fewer Jacobians (docs/calibration.md).
+#: once by default (``calibrate(jacobian_sets=)``; why 4: docs/calibration.md, "Ray noise
+#: and the independent-ray score", and the validation in studies/).
 DEFAULT_JACOBIAN_SETS = 4
 
 
@@ -273,7 +273,7 @@ def _independent_ray_steps(
     order in the noise its noise is that of one set for K = 2 (theta_1's own sets
     cancel: 2 (a + b)/2 - a = b), so theta_1's covariance is returned; where the root
     responds to J_b's noise non-linearly (SK at 1,024 rays) the extrapolated root
-    scatters more than that (pull widths 1.25-1.32, docs/calibration.md). The steps to
+    scatters more than that (studies/calibration-validation.md). The steps to
     theta_K start at theta_1, reuse the Newton matrix of theta_1's last step and the
     K-set J_b at theta_1, and compute only expected charges: the root of the score with
     J_b fixed at theta_1 differs from the one with J_b moving along only at the second
@@ -413,9 +413,8 @@ def calibrate(
             optics, indirect light), also find the root with the expected charges
             averaged over 2 ray sets and extrapolate the two roots to infinitely many
             rays (``_independent_ray_steps``): removes the ray-noise bias of order
-            1/(rays) (-0.5 sigma on the toy at 64 rays; on SK at 1,024 rays it moves
-            absorption by +0.31 +- 0.10 sigma over 60 experiments, pull mean -0.57 ->
-            -0.26; docs/calibration.md). With ``jacobian_sets`` both roots use the same
+            1/(rays) (its size on the toy and on SK: docs/calibration.md, "Accuracy to
+            expect"). With ``jacobian_sets`` both roots use the same
             averaged weights J_b, whose noise then cancels in the extrapolation. On by
             default; False returns the one-set root.
         jacobian_sets: with the independent-ray stage, the number K of independent ray

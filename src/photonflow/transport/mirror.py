@@ -35,16 +35,16 @@ out its detections after a first-order mirror vertex (it still follows those ray
 the sum stays unbiased.
 
 The wall under other sensors is not a smooth integrand: a node either reflects off bare
-wall or meets a disc. Taken node by node it was ~10 % off on SK's barrel for a source on
-the axis, whose reflections line up with the columns of discs (sampled mode against
-expected mode, docs/calibration.md). So each disc is mapped onto the wall whole: the
-linear map fitted to its nodes' reflection points takes it to an ellipse, and the part
-of that ellipse under other discs (``uncovered_share``, chord by chord, exact up to the
-chords' quadrature) is shared by all its nodes. The cap-barrel edge is still resolved
-node by node. Roots are found without gradient and refined by one Newton step with it
-(the implicit-function derivative), so the light, the covered part included, is
-differentiable in the source position; ``Params`` enter only through the weights.
-Lengths m, times ns.
+wall or meets a disc, and for a source on a cylinder's axis the reflections line up with
+the columns of discs, so node by node the covered part is poorly resolved (the sampled
+against the expected mode on SK: studies/transport-validation.md). So each disc is
+mapped onto the wall whole: the linear map fitted to its nodes' reflection points takes
+it to an ellipse, and the part of that ellipse under other discs (``uncovered_share``,
+chord by chord, exact up to the chords' quadrature) is shared by all its nodes. The
+cap-barrel edge is still resolved node by node. Roots are found without gradient and
+refined by one Newton step with it (the implicit-function derivative), so the light, the
+covered part included, is differentiable in the source position; ``Params`` enter only
+through the weights. Lengths m, times ns.
 """
 
 from __future__ import annotations
