@@ -82,3 +82,11 @@ def test_lbfgs_beats_adam_on_the_ill_conditioned_problem():
 @pytest.mark.parametrize("name", ["gauss-newton", "lbfgs", "adam"])
 def test_methods_by_name(name):
     assert hasattr(make_method(name), "update")
+
+
+def test_only_the_curvature_rule_measures_its_steps_in_sigma():
+    """The fit's handover to the independent-ray stage and its "no step lowers -log L"
+    convergence rest on steps measured in sigma (``StepRule.steps_in_sigma``)."""
+    assert make_method("gauss-newton").steps_in_sigma
+    assert not make_method("lbfgs").steps_in_sigma
+    assert not make_method("adam").steps_in_sigma

@@ -16,7 +16,7 @@ from ..geometry.detector import Detector
 from ..params import PARAM_SPECS, Params, from_unconstrained, validate_params
 from ..transport.optics import TransportConfig
 from .layout import FreeLayout, free_layout
-from .methods import GaussNewton, make_method, sigma_step_size, take_step
+from .methods import make_method, sigma_step_size, take_step
 from .objective import CalibrationProblem, IndependentRayParts, RayNoiseSets
 from .result import CalibrationResult
 from .runs import prepare_runs, run_provenance
@@ -471,14 +471,15 @@ def calibrate(
         history = [{"iteration": 0, "loss": problem.value(theta), "time_s": 0.0,
                     "values": _dense_values(problem, problem.params_of(theta))}]
         converged, message = False, f"stopped at max_iterations = {max_iterations}"
-        handover = problem.has_independent_rays and isinstance(step_rule, GaussNewton)
+        in_sigma = getattr(step_rule, "steps_in_sigma", False)
+        handover = problem.has_independent_rays and in_sigma
         for iteration in range(1, int(max_iterations) + 1):
             stage.name = f"iteration {iteration}"
             theta, state, step = step_rule.update(problem, theta, state)
             _refuse_runaway(theta, iteration)
             _record(problem, theta, history, started, callback, step.loss)
             if step.loss_change == 0.0 and step.step_size == 0.0:
-                converged = isinstance(step_rule, GaussNewton)
+                converged = in_sigma
                 message = "no step lowers -log L further" + (
                     "" if converged else f" ({step_rule.__class__.__name__})"
                 )

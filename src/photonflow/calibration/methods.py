@@ -16,7 +16,7 @@ loop (``fit.calibrate``) drives them all:
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, ClassVar, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -24,6 +24,23 @@ import numpy as np
 
 from ..errors import ConfigError, format_value
 from .objective import CalibrationProblem
+
+
+class StepRule(Protocol):
+    """What ``fit.calibrate`` needs of a step rule.
+
+    ``steps_in_sigma``: ``Step.step_size`` is in units of the free values' 1-sigma
+    uncertainties (a second-order rule that knows the curvature). Only then does the fit
+    treat a step below ``HANDOVER_SIGMA`` as the moment to hand over to the
+    independent-ray stage, and "no step lowers -log L further" as convergence; a rule
+    without the attribute counts as False.
+    """
+
+    steps_in_sigma: ClassVar[bool]
+
+    def init(self, problem: CalibrationProblem, theta: dict) -> dict[str, Any]: ...
+
+    def update(self, problem: CalibrationProblem, theta: dict, state: dict): ...
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,6 +123,7 @@ class GaussNewton:
         max_retries: damping increases (x4) tried per step before giving up.
     """
 
+    steps_in_sigma: ClassVar[bool] = True
     damping: float = 1e-3
     max_retries: int = 12
 
@@ -146,6 +164,7 @@ class LBFGS:
         max_halvings: line-search halvings before giving up a step.
     """
 
+    steps_in_sigma: ClassVar[bool] = False
     memory: int = 10
     max_halvings: int = 30
 
@@ -200,6 +219,7 @@ class Adam:
         learning_rate: step size in unconstrained units.
     """
 
+    steps_in_sigma: ClassVar[bool] = False
     learning_rate: float = 0.02
 
     def _optimizer(self):
@@ -227,7 +247,7 @@ class Adam:
 METHODS = {"gauss-newton": GaussNewton, "lbfgs": LBFGS, "adam": Adam}
 
 
-def make_method(method) -> GaussNewton | LBFGS | Adam:
+def make_method(method) -> StepRule:
     """A step rule from a name in ``METHODS`` or a step-rule object (returned as is)."""
     if isinstance(method, str):
         if method not in METHODS:
