@@ -1,5 +1,5 @@
-"""Calibration (issue 5): linear algebra, Fisher information, the response split, result
-files, bad input, and closure on sampled-mode pseudo-data of a toy detector."""
+"""Calibration (issue 5): linear algebra, Fisher information, result files, bad input,
+and closure on sampled-mode pseudo-data of a toy detector."""
 
 from __future__ import annotations
 
@@ -16,17 +16,11 @@ from photonflow.calibration import (
     load_params,
 )
 from photonflow.calibration.information import expected_score_curvature, gaussian_limit
-from photonflow.calibration.objective import (
-    ray_noise_score_bias,
-    summed_charge_nll,
-    with_response,
-    without_response,
-)
+from photonflow.calibration.objective import ray_noise_score_bias, summed_charge_nll
 from photonflow.calibration.structured import SandwichCovariance, StructuredMatrix
 from photonflow.errors import ConfigError
 from photonflow.io import make_event
 from photonflow.response import single_pe_charges
-from photonflow.transport.expected import expected_function
 from photonflow.transport.optics import TransportConfig
 from photonflow.transport.pseudo_data import sample_events
 
@@ -200,31 +194,6 @@ def test_first_hit_time_information_of_a_gaussian_pulse(mu, expected):
 def toy():
     detector = pf.load_detector("TOY_CYLINDER")
     return detector, pf.default_params(detector)
-
-
-def test_response_applied_after_transport_equals_the_expected_mode(toy):
-    """Efficiency x charge, offset + times, tts in quadrature: exactly what ``expected``
-    does with the same parameters. An off-centre isotropic source lights every sensor
-    directly; with the default transport settings on this detector the transport is the
-    README example's compiled code (test_api.py), not a compilation of its own."""
-    detector, params = toy
-    rng = np.random.default_rng(1)
-    params = params.replace(
-        efficiency=rng.uniform(0.8, 1.2, detector.n_sensors),
-        time_offset=rng.normal(0.0, 1.0, detector.n_sensors),
-        tts=1.7,
-    )
-    source = pf.IsotropicSource(position=[0.0, 0.0, 1.0], n_photons=1e5, pulse_width=0.5)
-    config = TransportConfig()
-    direct = pf.expected(detector, params, source, config=config)
-    # light before the response has tts = 0, outside the public domain of ``expected``
-    # (which checks its inputs): the prepared predictor takes it unchecked
-    bare = expected_function(detector, config=config)(without_response(params), source)
-    split = with_response(bare, params)
-    for name in ("charge", "time_mean", "time_sigma"):
-        # float32: the moment-matched widths are accumulated in another order (~1e-5)
-        np.testing.assert_allclose(getattr(split, name), getattr(direct, name), rtol=1e-4,
-                                   atol=1e-4)
 
 
 def _runs(detector, params, sources, seed, n_events, config):

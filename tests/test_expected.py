@@ -376,14 +376,15 @@ def test_glass_vertex_never_lights_its_own_disc():
     it in front of the disc, where the exact solid angle is ~2 pi sr (on SK this made
     ~20 p.e. spikes and biased the total by ~0.8 %). Both the far-field next-event
     estimate and the near-disc correction must give that disc nothing."""
-    from photonflow.transport import indirect
+    from photonflow.geometry.sensor_arrays import Sensors, near_grid_for
+    from photonflow.transport import next_event
 
     detector = preset_detector("TOY_CYLINDER")
     params = scattering_params(detector, sensor_reflectivity=0.5)
     positions = jnp.asarray(detector.sensor_positions, jnp.float32)
     normals = jnp.asarray(detector.sensor_normals, jnp.float32)
     radius = jnp.asarray(detector.sensor_radius, jnp.float32)
-    sensors = indirect._Sensors(positions, normals, radius)
+    sensors = Sensors(positions, normals, radius, near_grid=near_grid_for(detector))
     disc = 7
     in_front = positions[disc] + 1e-5 * normals[disc] + 0.3 * detector.sensor_radius[disc] * (
         jnp.cross(normals[disc], jnp.array([0.3, 0.4, 0.5]))
@@ -394,18 +395,19 @@ def test_glass_vertex_never_lights_its_own_disc():
         in_front[None],
         jnp.ones(1),
         jnp.zeros(1),
-        jnp.array([indirect._GLASS]),
+        jnp.array([next_event.GLASS]),
         incoming[None],
         normals[disc][None],
     )
     reference = jnp.zeros(detector.n_sensors)
     config = TransportConfig()
-    near_grid = indirect.near_grid_for(detector)
 
     def light(own_disc):
-        far = indirect._next_event(params, sensors, config, reference, *vertex_data, own_disc)
-        near = indirect._near_correction(
-            params, sensors, config, reference, near_grid, *vertex_data, own_disc
+        far = next_event.next_event_sums(
+            params, sensors, config, reference, *vertex_data, own_disc
+        )
+        near = next_event.near_correction_sums(
+            params, sensors, config, reference, *vertex_data, own_disc
         )
         return np.asarray(far[0] + near[0])
 

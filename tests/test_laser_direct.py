@@ -17,9 +17,9 @@ from scipy import integrate
 from photonflow.geometry import preset_detector
 from photonflow.params import default_params
 from photonflow.pytree import replace
+from photonflow.response.detection import acceptance_at_cos
 from photonflow.sources import DiffuserSource, IsotropicSource, LaserSource
 from photonflow.transport import direct_light, direct_light_jit, disc_solid_angle
-from photonflow.transport.optics import acceptance_at_cos
 from photonflow.transport.solid_angle import (
     disc_cone_solid_angle,
     disc_cosine_moment,
@@ -500,7 +500,6 @@ def test_isotropic_direct_light_unchanged(x64):
             * omega
             / (4 * math.pi)
             * params.quantum_efficiency
-            * params.efficiency
             * acceptance_at_cos(params.angular_acceptance, cos_incidence)
             * jnp.exp(
                 -distance

@@ -8,11 +8,13 @@ import numpy as np
 import pytest
 
 from photonflow.geometry import preset_detector
+from photonflow.geometry.sensor_arrays import Sensors, sensor_grid_for, sensors_for
 from photonflow.params import default_params
+from photonflow.response.detection import acceptance_at_cos
 from photonflow.sources import IsotropicSource
-from photonflow.transport import indirect
+from photonflow.transport import rays
 from photonflow.transport.emission import sample_directions
-from photonflow.transport.expected import expected_inputs, expected_jit
+from photonflow.transport.expected import expected_jit
 from photonflow.transport.mirror import (
     FOCUSING_LIMIT,
     _ellipses_covered,
@@ -21,7 +23,7 @@ from photonflow.transport.mirror import (
     mirror_light,
     mirror_paths,
 )
-from photonflow.transport.optics import TransportConfig, acceptance_at_cos, specular_direction
+from photonflow.transport.optics import TransportConfig, specular_direction
 
 
 def test_circle_reflections_are_the_stationary_points_of_the_path_length():
@@ -130,10 +132,9 @@ def _ray_estimate(detector, params, source, n_rays, key):
     dtype = jnp.float64
     positions = jnp.asarray(detector.sensor_positions, dtype)
     normals = jnp.asarray(detector.sensor_normals, dtype)
-    sensors = indirect._Sensors(positions, normals, jnp.asarray(detector.sensor_radius, dtype))
-    trace = functools.partial(
-        indirect._trace, detector.shape, indirect.sensor_grid_for(detector), sensors
-    )
+    sensors = Sensors(positions, normals, jnp.asarray(detector.sensor_radius, dtype),
+                      grid=sensor_grid_for(detector))
+    trace = functools.partial(rays.trace, detector.shape, sensors)
     u = jax.random.uniform(key, (2, n_rays), dtype=dtype)
     directions = sample_directions(source, u[0], u[1])
     origins = jnp.broadcast_to(source.position, (n_rays, 3))
@@ -148,7 +149,7 @@ def _ray_estimate(detector, params, source, n_rays, key):
     light = (
         source.n_photons / n_rays * params.wall_reflectivity * params.wall_specular_fraction
         * jnp.exp(-(t_first + t_second) / params.absorption_length)
-        * params.quantum_efficiency * params.efficiency[index]
+        * params.quantum_efficiency
         * acceptance_at_cos(params.angular_acceptance, cos_in)
     )
     return jnp.zeros(detector.n_sensors, dtype).at[index].add(jnp.where(counts, light, 0.0))
@@ -165,11 +166,7 @@ def test_mirror_light_agrees_with_mirrored_rays(name):
         )
         source = IsotropicSource(position=[0.3, -0.2, 0.5], n_photons=1e6)
         source = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), source)
-        paths = mirror_paths(
-            detector.shape, indirect.sensor_grid_for(detector),
-            jnp.asarray(detector.sensor_positions), jnp.asarray(detector.sensor_normals),
-            jnp.asarray(detector.sensor_radius), source, indirect.near_grid_for(detector),
-        )
+        paths = mirror_paths(detector.shape, sensors_for(detector, jnp.float64), source)
         quad = np.asarray(
             mirror_light(params, paths, source, jnp.zeros(detector.n_sensors))[0]
         )
@@ -198,18 +195,16 @@ def test_mirror_paths_computed_once_give_the_same_prediction():
             wall_reflectivity=0.3, wall_specular_fraction=0.8)
         source = IsotropicSource(position=[0.3, -0.2, 0.5], n_photons=1e6)
         source = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), source)
-        positions, normals, radius, grid, near_grid = expected_inputs(detector, jnp.float64)
+        sensors = sensors_for(detector, jnp.float64)
         config = TransportConfig(n_bounces=1, n_rays=64)
-        paths = mirror_paths(detector.shape, grid, positions, normals, radius, source,
-                             near_grid)
+        paths = mirror_paths(detector.shape, sensors, source)
         assert float(jnp.sum(paths.weight)) > 0
 
         def charge(values, mirror):
             wall, absorption, efficiency = values
             changed = params.replace(wall_reflectivity=wall, absorption_length=absorption,
                                      efficiency=params.efficiency.at[3].set(efficiency))
-            return expected_jit(positions, normals, radius, grid, changed, source,
-                                jax.random.key(2), near_grid, mirror,
+            return expected_jit(sensors, changed, source, jax.random.key(2), mirror,
                                 shape=detector.shape, config=config).charge
 
         at = tuple(jnp.float64(v) for v in (0.3, float(params.absorption_length), 1.0))

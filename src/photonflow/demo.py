@@ -91,8 +91,8 @@ def calibration_run_step(name: str) -> Step:
         from .config import load_setup
         from .io import read_events, write_events
         from .likelihood import dark_expectation
+        from .response.spe import single_pe_moments
         from .sources import IsotropicSource
-        from .spe import single_pe_moments
         from .transport.expected import expected
         from .transport.optics import TransportConfig
         from .transport.pseudo_data import sample_events

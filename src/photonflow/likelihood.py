@@ -39,7 +39,7 @@ from .io.events import Event
 from .numerics import clip, strict_array, where
 from .params import Params
 from .prediction import Prediction
-from .spe import single_pe_moments
+from .response.spe import single_pe_moments
 
 #: Floor on the dark-noise expectation per sensor and window, p.e.
 DARK_FLOOR = 1e-9
@@ -75,7 +75,7 @@ def _charge_mixture(
     """Log of E[kernel(q | n) | n >= 1] for n ~ Poisson(mu), blended into a Gaussian.
 
     The kernel of one photoelectron is ``one_photoelectron(q, w)`` (the exact truncated
-    normal of ``photonflow.spe``); for n >= 2 and in the Gaussian branch it is
+    normal of ``photonflow.response.spe``); for n >= 2 and in the Gaussian branch it is
     ``normal(q, mean, sd)`` with the n-fold mean and variance. Both return log values
     (densities for ``charge_logpdf``, cumulatives for ``charge_logcdf``).
     """
@@ -163,7 +163,7 @@ def charge_logpdf(
         q: charge, p.e. (any shape broadcasting with ``mu``).
         mu: expected number of photoelectrons (> 0), p.e.
         spe_width: width w of the single-p.e. charge Normal(1, w) truncated at 0 (see
-            ``photonflow.spe``), p.e. (scalar or broadcastable).
+            ``photonflow.response.spe``), p.e. (scalar or broadcastable).
         n_terms: number of consecutive n summed in the exact branch (static).
         mu_switch: centre of the blend into the Gaussian approximation, p.e. (static).
         blend: half-width of the blend, p.e. (static).

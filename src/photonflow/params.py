@@ -99,7 +99,7 @@ class Params:
         time_offset: (N,) time offset of each sensor, ns.
         tts: transit-time spread, Gaussian sigma, ns.
         spe_width: width w of the single-p.e. charge Normal(1, w) truncated at 0, p.e.
-            (``photonflow.spe``).
+            (``photonflow.response.spe``).
         dark_rate: dark-noise rate per sensor, Hz.
         angular_acceptance: (10,) relative acceptance at incidence angles 0, 10, ..., 90
             degrees (all ones = flat).

@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 
 import photonflow as pf
 from photonflow.calibration.campaign import campaign_sources, campaign_truth
-from photonflow.spe import single_pe_moments
+from photonflow.response.spe import single_pe_moments
 from photonflow.transport.optics import TransportConfig
 from photonflow.transport.pseudo_data import sample_events
 

@@ -44,8 +44,8 @@ from ..errors import ConfigError
 from ..geometry.detector import Detector
 from ..likelihood import dark_expectation
 from ..params import Params, to_unconstrained, validate_params
+from ..response.spe import single_pe_moments
 from ..sources import IsotropicSource
-from ..spe import single_pe_moments
 from ..transport.direct import direct_light
 from ..transport.expected import expected
 from ..transport.optics import TransportConfig

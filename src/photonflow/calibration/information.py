@@ -2,7 +2,7 @@
 and the first-hit time about the parameters (second half of this module).
 
 A sensor that collects n ~ Poisson(M) photoelectrons over a run records the summed
-charge Q of n single-p.e. charges (``photonflow.spe``; Q = 0 exactly when n = 0). The
+charge Q of n single-p.e. charges (``photonflow.response.spe``; Q = 0 exactly when n = 0). The
 information about M carried by Q,
 
     I(M) = E[(d log P(Q | M) / dM)^2]
@@ -29,7 +29,7 @@ from jax.scipy.special import log_ndtr, ndtr
 
 from ..likelihood import MU_BLEND, MU_SWITCH, charge_logpdf, log1mexp
 from ..numerics import clip, where
-from ..spe import single_pe_moments
+from ..response.spe import single_pe_moments
 
 #: log10 of the smallest and largest tabulated M, p.e. Below, M I(M) is constant (pure
 #: counting); above, the likelihood is its Gaussian branch and I(M) is ``gaussian_limit``.

@@ -1,11 +1,10 @@
 """The calibration objective: -log L of every run, its gradient and its curvature.
 
-Per run r with source s_r and E_r events, the expected-mode prediction is computed with
-the sensor response taken out (efficiency 1, time offset 0, transit-time spread 0) and
-put back afterwards (``with_response``): a sensor's charge is multiplied by its
-efficiency, its times shifted by its offset, its time widths widened by the spread in
-quadrature. This is exact (the expected mode applies them the same way) and means that
-when only response fields are free the light transport runs once per run, not per step.
+Per run r with source s_r and E_r events, the expected-mode prediction is the light
+transport's ``SensorLight`` followed by the sensor response
+(``response.expected_response``), as in ``expected``: when only response fields are
+free (efficiencies, time offsets, transit-time spread, dark rate, single-p.e. width)
+the transport runs once per run, not per step.
 
 Likelihoods (``CalibrationProblem(..., likelihood=...)``):
 
@@ -40,6 +39,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..geometry.detector import Detector
+from ..geometry.sensor_arrays import sensors_for
 from ..likelihood import (
     charge_logpdf,
     dark_expectation,
@@ -50,7 +50,8 @@ from ..likelihood import (
 from ..numerics import where
 from ..params import Params, from_unconstrained, to_unconstrained
 from ..prediction import Prediction
-from ..transport.expected import expected_inputs, expected_jit
+from ..response.expected import SensorLight, expected_response
+from ..transport.expected import sensor_light
 from ..transport.mirror import MirrorPaths, mirror_paths
 from ..transport.optics import TransportConfig
 from .information import (
@@ -65,31 +66,6 @@ from .information import (
 from .layout import FreeLayout
 from .runs import RunData
 from .structured import SandwichCovariance, StructuredMatrix
-
-
-def without_response(params: Params) -> Params:
-    """``params`` with efficiency 1, time offset 0 and transit-time spread 0 (the light
-    transport's own parameters only)."""
-    return dataclasses.replace(
-        params,
-        efficiency=jnp.ones_like(params.efficiency),
-        time_offset=jnp.zeros_like(params.time_offset),
-        tts=jnp.zeros_like(params.tts),
-    )
-
-
-def with_response(transport: Prediction, params: Params) -> Prediction:
-    """Apply the sensor response of ``params`` to a prediction made with
-    ``without_response(params)``: charge x efficiency (p.e.), times + time offset (ns),
-    widths sqrt(sigma^2 + tts^2) (ns); dark rate (Hz) and single-p.e. width attached."""
-    return dataclasses.replace(
-        transport,
-        charge=transport.charge * params.efficiency,
-        time_mean=transport.time_mean + params.time_offset[:, None],
-        time_sigma=jnp.sqrt(transport.time_sigma**2 + params.tts**2),
-        dark_rate=params.dark_rate,
-        spe_width=params.spe_width,
-    )
 
 
 def summed_charge_nll(charge_sum, hit_any, mean, spe_width) -> jax.Array:
@@ -239,9 +215,9 @@ def _params_of(theta: dict, base: Params) -> Params:
 def _prediction(theta, base, sensors, data, cached, static: _Static) -> Prediction:
     params = _params_of(theta, base)
     if cached is None:
-        cached = _transport_jit(sensors, without_response(params), data.source, data.key,
-                                data.mirror, shape=static.shape, config=static.config)
-    return with_response(cached, params)
+        cached = sensor_light(sensors, params, data.source, data.key, data.mirror,
+                              shape=static.shape, config=static.config)
+    return expected_response(cached, params)
 
 
 def _mean(theta, base, sensors, data, cached, static: _Static):
@@ -501,7 +477,7 @@ class CalibrationProblem:
         information_table(spe_width)  # built here, outside jit (cached)
         score_curvature_table(spe_width)
         dtype = jnp.result_type(init_params.absorption_length)
-        self.sensors = expected_inputs(detector, dtype)
+        self.sensors = sensors_for(detector, dtype)
         per_event = likelihood == "charge+time"
         sources = [jax.tree.map(lambda x: jnp.asarray(x, dtype), run.source) for run in runs]
         self.arrays = [
@@ -537,10 +513,10 @@ class CalibrationProblem:
         self.cached = [None] * len(runs)
         if not layout.needs_transport:
             theta = self.initial_theta()
-            transport = without_response(self.params_of(theta))
+            params = self.params_of(theta)
             self.cached = [
-                _transport_jit(self.sensors, transport, data.source, data.key, data.mirror,
-                               shape=detector.shape, config=config)
+                _sensor_light_jit(self.sensors, params, data.source, data.key, data.mirror,
+                                  shape=detector.shape, config=config)
                 for data in self.arrays
             ]
         # -log L of the terms the free values do not change (the charges when only time
@@ -802,18 +778,13 @@ def ray_set_keys(key, n_sets: int) -> list:
 
 
 @functools.partial(jax.jit, static_argnames=("shape", "config"))
-def _transport_jit(sensors, params, source, key, mirror, *, shape, config) -> Prediction:
-    positions, normals, radius, grid, near_grid = sensors
-    return expected_jit(
-        positions, normals, radius, grid, params, source, key, near_grid, mirror,
-        shape=shape, config=config,
-    )
+def _sensor_light_jit(sensors, params, source, key, mirror, *, shape, config) -> SensorLight:
+    return sensor_light(sensors, params, source, key, mirror, shape=shape, config=config)
 
 
 @functools.partial(jax.jit, static_argnames=("shape",))
 def _mirror_paths_jit(sensors, source, *, shape) -> MirrorPaths:
-    positions, normals, radius, grid, near_grid = sensors
-    return mirror_paths(shape, grid, positions, normals, radius, source, near_grid)
+    return mirror_paths(shape, sensors, source)
 
 
 def run_mirror_paths(sensors, source, shape, config: TransportConfig) -> MirrorPaths | None:

@@ -4,7 +4,7 @@ mode) and photon-by-photon Monte Carlo (sampled mode), on one description of the
 
 from ..constants import SPEED_OF_LIGHT
 from .direct import direct_light, direct_light_jit, interpolate_acceptance
-from .expected import expected, expected_function
+from .expected import expected, expected_function, sensor_light
 from .optics import TransportConfig
 from .production import produce_events
 from .pseudo_data import sample, sample_events
@@ -29,4 +29,5 @@ __all__ = [
     "sample_events",
     "sample_photon_bundle",
     "sample_photons",
+    "sensor_light",
 ]

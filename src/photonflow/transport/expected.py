@@ -1,18 +1,22 @@
-"""Expected mode: the smooth prediction (direct light by quadrature + indirect by rays).
+"""Expected mode: the smooth prediction (direct light by quadrature + indirect by rays),
+then the sensor response.
 
-Per sensor j the expected p.e. is the direct light of ``direct_light`` plus the indirect
-light of ``indirect_light`` summed over bounce orders. The arrival-time density is a
-Gaussian mixture of K = 1 + n_bounces components:
+The transport (``sensor_light``) gives, per sensor j, the light of ``direct_light`` and
+the indirect light of ``indirect_light`` by bounce order, as a Gaussian mixture of
+K = 1 + n_bounces arrival-time components:
 
-- component 0, direct light: mean = its straight-line arrival time, sigma =
-  sqrt(tts^2 + pulse_width^2);
+- component 0, direct light: mean = its straight-line arrival time, variance =
+  pulse_width^2;
 - component k (1..n_bounces), light whose last vertex is the k-th: mean and variance
-  moment-matched to the charge-weighted arrival times of that light, plus tts^2 +
+  moment-matched to the charge-weighted arrival times of that light, plus
   pulse_width^2;
 
 with weights proportional to each part's expected p.e. A sensor without light of some
-order gets a zero weight for it (mean: the direct time, sigma as for direct light); a
-sensor with no light at all gets all weight on component 0 (finite and harmless).
+order gets a zero weight for it (mean: the direct time, variance as for direct light);
+a sensor with no light at all gets all weight on component 0 (finite and harmless).
+The sensor response (``response.expected_response``) then scales the charge by the
+sensor's efficiency, shifts the means by its time offset and adds tts^2 to every
+variance.
 """
 
 from __future__ import annotations
@@ -24,13 +28,15 @@ import jax
 import jax.numpy as jnp
 
 from ..geometry.detector import Detector
+from ..geometry.sensor_arrays import Sensors, sensors_for
 from ..geometry.sensor_grid import SensorGrid
 from ..numerics import default_float_dtype, strict_array, where
 from ..params import Params, validate_params
 from ..prediction import Prediction
+from ..response.expected import SensorLight, expected_response
 from ..sources import check_source
 from .direct import direct_light_jit
-from .indirect import indirect_light_jit, near_grid_for, sensor_grid_for
+from .indirect import indirect_light_jit
 from .optics import TransportConfig
 
 
@@ -91,23 +97,6 @@ def is_concrete(tree) -> bool:
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(tree))
 
 
-def expected_inputs(detector: Detector, dtype=None, grid: SensorGrid | None = None) -> tuple:
-    """The detector arrays ``expected_jit`` takes: (sensor centres (N, 3) m, inward
-    normals (N, 3), disc radii (N,) m) in ``dtype`` (default JAX's default float), the
-    sensor lookup grid (``grid``, or the detector's own; None for an open medium) and
-    the near-sensor grid. Evaluated eagerly even inside a traced function."""
-    with jax.ensure_compile_time_eval():
-        if grid is None and detector.shape.has_walls:
-            grid = sensor_grid_for(detector)
-        arrays = (
-            strict_array(x, dtype)
-            for x in (
-                detector.sensor_positions, detector.sensor_normals, detector.sensor_radius
-            )
-        )
-        return (*arrays, grid, near_grid_for(detector))
-
-
 def expected_function(
     detector: Detector,
     dtype=None,
@@ -143,16 +132,14 @@ def expected_function(
 
 def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
     """``expected_function``'s predictor, uncached."""
-
     cast = functools.partial(strict_array, dtype=dtype)
-
-    positions, normals, radius, grid, near_grid = expected_inputs(detector, dtype, grid)
+    sensors = sensors_for(detector, dtype, grid)
 
     def predict(params: Params, source, key=None) -> Prediction:
         """Expected p.e. and time mixture per sensor (see ``expected``); no checks."""
         return expected_jit(
-            positions, normals, radius, grid, jax.tree.map(cast, params),
-            jax.tree.map(cast, source), key, near_grid, shape=detector.shape, config=config,
+            sensors, jax.tree.map(cast, params), jax.tree.map(cast, source), key,
+            shape=detector.shape, config=config,
         )
 
     return predict
@@ -163,67 +150,38 @@ _PREDICTORS: WeakKeyDictionary = WeakKeyDictionary()
 
 
 @functools.partial(jax.jit, static_argnames=("shape", "config"))
-def expected_jit(
-    sensor_positions,
-    sensor_normals,
-    sensor_radius,
-    grid,
-    params,
-    source,
-    key,
-    near_grid=None,
-    mirror=None,
-    *,
-    shape,
-    config,
-):
-    """``expected`` on arrays: (N, 3) sensor centres m, (N, 3) inward unit normals, (N,)
-    disc radii m, the lookup grid (or None), ``params`` and ``source`` of one float dtype,
-    a ``jax.random`` key (None: ``jax.random.key(0)``), the near-sensor grid
-    (``near_grid_for``; None: far-field solid angles only) and the source's first-order
-    mirror paths (``mirror.mirror_paths``; None: computed here); ``shape`` and ``config``
-    static.
-    Returns a ``Prediction``."""
+def expected_jit(sensors: Sensors, params, source, key=None, mirror=None, *, shape, config):
+    """``expected`` on arrays: the detector's ``Sensors``, ``params`` and ``source`` of
+    one float dtype, a ``jax.random`` key (None: ``jax.random.key(0)``) and the source's
+    first-order mirror paths (``mirror.mirror_paths``; None: computed here); ``shape``
+    and ``config`` static. The transport (``sensor_light``) followed by the sensor
+    response (``response.expected_response``). Returns a ``Prediction``."""
+    light = sensor_light(sensors, params, source, key, mirror, shape=shape, config=config)
+    return expected_response(light, params)
+
+
+def sensor_light(sensors: Sensors, params, source, key=None, mirror=None, *, shape, config):
+    """The expected mode's transport: the ``SensorLight`` arriving at each sensor (p.e. of
+    a sensor of relative efficiency 1, times before its offset and transit-time spread),
+    from direct light and the indirect light of each bounce order (the module
+    docstring's mixture); arguments as ``expected_jit``'s. Traced inline (call it inside
+    a jitted function)."""
     key = jax.random.key(0) if key is None else key  # in the trace: no eager program
-    mu_direct, t_direct = direct_light_jit(
-        sensor_positions, sensor_normals, sensor_radius, params, source
-    )
+    mu_direct, t_direct = direct_light_jit(sensors, params, source)
     indirect = indirect_light_jit(
-        sensor_positions,
-        sensor_normals,
-        sensor_radius,
-        grid,
-        params,
-        source,
-        t_direct,
-        key,
-        near_grid,
-        mirror,
-        shape=shape,
-        config=config,
+        sensors, params, source, t_direct, key, mirror, shape=shape, config=config
     )
-    charge_parts = jnp.concatenate([mu_direct[None], indirect.charge], axis=0).T  # (N, K)
+    charge = jnp.concatenate([mu_direct[None], indirect.charge], axis=0).T  # (N, K)
     means = jnp.concatenate([t_direct[None], indirect.time_mean], axis=0).T
-    variance_parts = jnp.concatenate(
+    variances = jnp.concatenate(
         [jnp.zeros_like(t_direct)[None], indirect.time_variance], axis=0
     ).T
-    has_light = charge_parts > 0
-    means = where(has_light, means, t_direct[:, None])
-    variance_parts = where(has_light, variance_parts, 0.0)
-    smear = params.tts * params.tts + source.pulse_width * source.pulse_width
-    sigmas = jnp.sqrt(variance_parts + smear)
-    charge = jnp.sum(charge_parts, axis=1)
-    lit = charge > 0
-    safe_charge = where(lit, charge, 1.0)
-    default = jnp.zeros_like(charge_parts).at[:, 0].set(1.0)
-    weights = where(lit[:, None], charge_parts / safe_charge[:, None], default)
-    return Prediction(
+    has_light = charge > 0
+    pulse = source.pulse_width * source.pulse_width
+    return SensorLight(
         charge=charge,
-        time_weight=weights,
-        time_mean=means,
-        time_sigma=sigmas,
+        time_mean=where(has_light, means, t_direct[:, None]),
+        time_variance=where(has_light, variances, 0.0) + pulse,
         residual_weight=indirect.residual_weight,
-        dark_rate=params.dark_rate,
-        spe_width=params.spe_width,
         window=tuple(float(x) for x in config.window),
     )

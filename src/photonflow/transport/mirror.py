@@ -8,11 +8,12 @@ therefore computed like direct light, for every node x of a 7-point rule on disc
 (Radon's degree-5 rule: the centre and six points at sqrt(2/3) r):
 
     mu_j = N R_w f_s sum_x w_x sum_P S(omega_P) cos_in(x) / A_P(x)
-           x QE eff_j A(theta_in) exp(-rate_total L) [P not covered by a sensor]
+           x QE A(theta_in) exp(-rate_total L) [P not covered by a sensor]
 
-with L = |P - s| + |x - P| the path length, omega_P the emission direction toward P,
-A_P the area per steradian of the reflected ray tube at x (m^2/sr; photons per m^2
-across the ray = S / A_P) and the indicator that the photon reaches the black wall at P
+(light of a sensor of efficiency 1: the sensor response applies eff_j), with
+L = |P - s| + |x - P| the path length, omega_P the emission direction toward P, A_P the
+area per steradian of the reflected ray tube at x (m^2/sr; photons per m^2 across the
+ray = S / A_P) and the indicator that the photon reaches the black wall at P
 rather than a sensor disc (``uncovered_share``). The reflection points:
 
 - planar faces (cylinder caps, box faces): the mirror image s' of the source; P is where
@@ -55,12 +56,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..geometry.sensor_arrays import Sensors
 from ..geometry.sensor_grid import grid_candidates_xyz
 from ..geometry.shapes import Box, Cylinder, Sphere
 from ..numerics import hypot, safe_sqrt, where
 from ..params import Params
 from ..pytree import pytree_dataclass
-from .optics import acceptance_at_cos, interaction_rates, travel_time
+from ..response.detection import acceptance_at_cos
+from .optics import interaction_rates, travel_time
 from .solid_angle import plane_basis
 
 #: Azimuths of the grid that brackets reflection points on a circle.
@@ -518,7 +521,7 @@ def uncovered_share(near_grid, sensor_positions, sensor_normals, sensor_radius, 
     across a disc). A slot where some of the disc's nodes have no reflection (the
     cap-barrel edge) keeps the point test per node. Only the ``NEAREST_DISCS`` discs
     nearest to the patch's centre are tested; ``near_grid`` must list them
-    (``indirect.near_grid_for``'s lists every disc within 4 radii)."""
+    (``sensor_arrays.near_grid_for``'s lists every disc within 4 radii)."""
     linear = disc_to_wall(points, valid, sensor_radius)  # (N, M, 2, 3)
     spans = sensor_radius[:, None, None, None] * linear
     # look the discs up at the first node with a reflection in each slot (the centre's
@@ -545,7 +548,7 @@ class MirrorPaths:
 
     Attributes:
         weight: (T, M) m^2/sr-normalised light per emitted photon and unit specular
-            reflectivity R_w f_s, before QE, efficiency, acceptance and attenuation: the
+            reflectivity R_w f_s, before QE, acceptance and attenuation: the
             emission density toward the wall point (1/sr) x cos_in / the ray tube's area
             per sr (m^2/sr) x the node's area (m^2) x the share of it over bare wall;
             0 where the path does not count (no reflection, the wall under a disc, the
@@ -559,24 +562,25 @@ class MirrorPaths:
     path: jax.Array
 
 
-def mirror_paths(shape, grid, sensor_positions, sensor_normals, sensor_radius, source,
-                 near_grid=None) -> MirrorPaths:
+def mirror_paths(shape, sensors: Sensors, source) -> MirrorPaths:
     """The first-order mirror paths from ``source`` to every sensor (``MirrorPaths``).
 
     Args:
         shape: the walled ``Shape`` (``Cylinder``, ``Sphere`` or ``Box``).
-        grid: its sensor lookup grid (for the wall under sensor discs).
-        sensor_positions, sensor_normals, sensor_radius: (N, 3) m, (N, 3), (N,) m.
+        sensors: the detector's ``Sensors`` (m). The wall under other discs, across a
+            disc's whole mirrored patch, is found with its ``near_grid`` (every disc
+            within a few radii of a point); without one, with its ``grid`` (only the
+            discs within r + ``BASE_MARGIN`` of a point, too few for patches larger
+            than that).
         source: a calibration source (position m, ``emission_density``).
-        near_grid: a grid listing every disc within a few radii of a point
-            (``indirect.near_grid_for``), for the wall under other discs across a
-            disc's whole mirrored patch; None: ``grid`` (which lists only the discs
-            within r + ``BASE_MARGIN`` of a point, too few for patches larger than that).
 
     Differentiable in the source position (the roots by their implicit-function
     derivative, the covered share chord by chord). For a fixed source (a calibration
     run) it can be computed once and passed to ``mirror_light`` at every ``Params``.
     """
+    sensor_positions, sensor_normals, sensor_radius = (
+        sensors.positions, sensors.normals, sensors.radius
+    )
     n = sensor_positions.shape[0]
     nodes, node_area = disc_nodes(sensor_positions, sensor_normals, sensor_radius)
     per_disc = nodes.shape[1]
@@ -595,7 +599,8 @@ def mirror_paths(shape, grid, sensor_positions, sensor_normals, sensor_radius, s
     l_out = jnp.linalg.norm(outgoing, axis=-1)
     cos_in = -jnp.sum(outgoing * sensor_normals[receiver][:, None], axis=-1) / l_out
     uncovered = uncovered_share(
-        grid if near_grid is None else near_grid, sensor_positions, sensor_normals, sensor_radius,
+        sensors.grid if sensors.near_grid is None else sensors.near_grid,
+        sensor_positions, sensor_normals, sensor_radius,
         points.reshape(n, per_disc, -1, 3),
         valid.reshape(n, per_disc, -1),
     ).reshape(points.shape[:2])
@@ -618,14 +623,15 @@ def mirror_light(params: Params, paths: MirrorPaths, source, reference_time):
     """First-order specular light from the source per sensor (see the module docstring).
 
     Args:
-        params: detector parameters (reflectivities, lengths m, offsets ns).
+        params: detector parameters (reflectivities, lengths m).
         paths: the source's ``mirror_paths``.
         source: the same source (photons, time ns).
         reference_time: (N,) ns subtracted from arrival times.
 
     Returns:
-        (N,) sums of c, c t and c t^2: c expected p.e., t arrival time minus the
-        reference (ns; before transit-time spread and pulse width).
+        (N,) sums of c, c t and c t^2: c expected p.e. of a sensor of efficiency 1, t
+        arrival time minus the reference (ns; before the sensor's time offset, the
+        transit-time spread and the pulse width).
     """
     n = reference_time.shape[0]
     receiver = jnp.repeat(jnp.arange(n), paths.weight.shape[0] // n)
@@ -636,13 +642,8 @@ def mirror_light(params: Params, paths: MirrorPaths, source, reference_time):
         * params.wall_specular_fraction
         * paths.weight
         * params.quantum_efficiency
-        * params.efficiency[receiver][:, None]
         * acceptance_at_cos(params.angular_acceptance, jnp.maximum(paths.cos_in, 0.0))
         * jnp.exp(-rate_total * paths.path)
     )
-    relative = (
-        source.time
-        + travel_time(paths.path, params)
-        + (params.time_offset - reference_time)[receiver][:, None]
-    )
+    relative = source.time + travel_time(paths.path, params) - reference_time[receiver][:, None]
     return tuple(jnp.sum((detected * relative**k).reshape(n, -1), axis=1) for k in range(3))

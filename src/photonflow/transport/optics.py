@@ -7,11 +7,11 @@ One description of the physics, used by both modes so that they agree by constru
 - wall: a photon reaching the wall is reflected with probability
   ``wall_reflectivity``; a reflection is specular with probability
   ``wall_specular_fraction`` and Lambertian (cosine law) otherwise; the rest is absorbed;
-- sensor: a photon crossing a sensor's disc from the front is detected with
-  probability QE x efficiency_j x acceptance(incidence) (``acceptance_at_cos``),
-  reflected with probability ``sensor_reflectivity``, and absorbed otherwise
-  (QE x acceptance is the detection probability of a photon arriving on the sensor,
-  so direct light by quadrature uses the same factor). The reflection is specular off
+- sensor: a photon crossing a sensor's disc from the front is reflected by its glass
+  with probability ``sensor_reflectivity``; otherwise it is detected or absorbed, as
+  the sensor response decides (``photonflow.response.detection``: detected with
+  probability QE x efficiency_j x acceptance(incidence) per arriving photon, the factor
+  direct light by quadrature uses too). The reflection is specular off
   the hemispherical glass dome above the disc: a photon crossing the disc at offset q
   from its centre is mirrored about the dome's normal there, (q + sqrt(r^2 - |q|^2) n)
   / r. A convex dome spreads the reflected light over a wide range of directions
@@ -197,28 +197,6 @@ def dome_reflection_density(direction_in, direction_out, normal):
     h_out = jnp.sum(half * direction_out, axis=-1) / norm
     valid = (h_n > 0) & (h_out > 0)
     return where(valid, h_n / (4.0 * math.pi * where(valid, h_out, 1.0)), 0.0)
-
-
-#: Incidence angles (rad) of the ``angular_acceptance`` table: 0, 10, ..., 90 degrees.
-ACCEPTANCE_ANGLES = tuple(math.radians(10.0 * i) for i in range(10))
-_ACCEPTANCE_COS = tuple(math.cos(angle) for angle in ACCEPTANCE_ANGLES)
-
-
-def acceptance_at_cos(table, cos_incidence):
-    """Angular acceptance at incidence cos theta: the (10,) table at 0, 10, ..., 90 degrees,
-    interpolated linearly in cos theta between its nodes (1 above 0 degrees is the first
-    entry; below 90 degrees the last). Written as a sum of clipped ramps: no inverse
-    trigonometry and no gathers, which keeps it cheap on every sensor-vertex pair, and
-    differentiable in the table and in cos theta."""
-    # unrolled on purpose: nine fused element-wise ramps. The same sum on a trailing
-    # axis of nodes compiles faster but made the SK forward pass ~50 % slower (the
-    # (rays, sensors, 9) intermediate of the next-event estimate).
-    value = table[9]
-    for i in range(9):
-        upper, lower = _ACCEPTANCE_COS[i], _ACCEPTANCE_COS[i + 1]
-        ramp = clip((cos_incidence - lower) * (1.0 / (upper - lower)), 0.0, 1.0)
-        value = value + (table[i] - table[i + 1]) * ramp
-    return value
 
 
 def dome_reflection_density_cos(cos_turn, cos_out, in_normal):

@@ -20,7 +20,7 @@ from ..geometry.detector import Detector
 from ..io.events import Event, Truth
 from ..params import Params, validate_params
 from ..progress import with_progress
-from ..response import photoelectrons_to_event
+from ..response.hits import photoelectrons_to_event
 from ..sources import DiffuserSource, IsotropicSource, LaserSource, check_source
 from .optics import DEFAULT_CONFIG, TransportConfig
 from .sampled import (

@@ -14,10 +14,13 @@ The physics is the one of ``optics.py``, step by step for a batch of photons at 
 
    - bulk: absorbed with probability rate_abs / rate_total, else scattered (Rayleigh
      or Mie by their rate ratio) into a new direction (``deflect``, uniform azimuth);
-   - sensor j: detected with probability QE x efficiency_j x acceptance(incidence)
-     (exactly the factor of direct light by quadrature), reflected specularly off the
-     glass with probability ``sensor_reflectivity``, absorbed otherwise (u < p_det:
-     detected; p_det <= u < p_det + R: reflected);
+   - sensor j: the sensor response decides (``response.detection.sensor_fate``, the
+     one definition of detection): detected with probability QE x efficiency_j x
+     acceptance(incidence) (exactly the factor of direct light by quadrature),
+     reflected specularly off the glass with probability ``sensor_reflectivity``,
+     absorbed otherwise (u < p_det: detected; p_det <= u < p_det + R: reflected).
+     Detection and reflection are exclusive outcomes of one uniform, so the loop asks
+     the response at the moment a photon meets a sensor;
    - wall: reflected with probability ``wall_reflectivity`` (specular with probability
      ``wall_specular_fraction``, else Lambertian about the inward normal), absorbed
      otherwise; in an open medium the world boundary is not a wall: the photon escapes.
@@ -52,20 +55,20 @@ import numpy as np
 
 from ..errors import ConfigError, format_value
 from ..geometry.detector import Detector
+from ..geometry.sensor_arrays import Sensors, sensor_grid_for, sensors_for
 from ..geometry.sensor_grid import SensorGrid, first_sensor_hit_xyz
 from ..geometry.shapes import xyz
 from ..numerics import clip, strict_array, where
 from ..params import Params, validate_params
+from ..response.detection import sensor_fate
 from ..sources import (
     DIRECTION_TOLERANCE,
     check_source,
 )
 from .emission import sample_directions
-from .indirect import sensor_grid_for
 from .optics import (
     DEFAULT_CONFIG,
     TransportConfig,
-    acceptance_at_cos,
     deflect_xyz,
     dome_normal_xyz,
     dot_xyz,
@@ -231,20 +234,16 @@ def _bulk_turn(u_process, u_cos, rates, params, anisotropy):
     return pick < absorption, cos_theta
 
 
-def _sensor_response(u, direction, point, sensor, sensors, params):
+def _sensor_response(u, direction, point, sensor, sensors: Sensors, params):
     """(detected, reflected, mirror normal) of photons crossing disc ``sensor`` at
-    ``point`` (m): detected if u < QE x efficiency x acceptance, reflected if not and
-    u < that + ``sensor_reflectivity``; the mirror is the glass dome over the disc."""
-    positions, normals, radius = sensors
-    normal = tuple(normals[:, k][sensor] for k in range(3))
-    centre = tuple(positions[:, k][sensor] for k in range(3))
+    ``point`` (m), from the sensor response's ``sensor_fate`` of one uniform u; the
+    mirror is the glass dome over the disc."""
+    normal = tuple(sensors.normals[:, k][sensor] for k in range(3))
+    centre = tuple(sensors.positions[:, k][sensor] for k in range(3))
     cos_incidence = clip(-dot_xyz(direction, normal), -1.0, 1.0)
-    acceptance = acceptance_at_cos(params.angular_acceptance, cos_incidence)
-    p_detect = params.quantum_efficiency * params.efficiency[sensor] * acceptance
-    detected = u < p_detect
-    reflected = ~detected & (u < p_detect + params.sensor_reflectivity)
+    detected, reflected = sensor_fate(params, sensor, cos_incidence, u)
     offset = tuple(p - c for p, c in zip(point, centre, strict=True))
-    return detected, reflected, dome_normal_xyz(offset, normal, radius[sensor])
+    return detected, reflected, dome_normal_xyz(offset, normal, sensors.radius[sensor])
 
 
 def _wall_response(u, params):
@@ -279,12 +278,11 @@ def _fate(bulk, absorbed, on_sensor, detected, sensor_reflected, wall_reflected,
     return where(bulk, where(absorbed, ABSORBED_BULK, ALIVE), surface)
 
 
-def _step_function(shape, config, sensors, grid, params):
+def _step_function(shape, config, sensors: Sensors, params):
     """``step(key, photons) -> photons``: one segment and its interaction for photons that
     are all ALIVE (``_step_in_chunks`` passes only those, and drops the results of its
     fill lanes); closure over constants. Uniforms per photon, from ``key``: the free path,
     the process (bulk kind, detection, reflection), the polar angle and the azimuth."""
-    positions, normals, radius = sensors
     rates = interaction_rates(params)
     total = rates[3]
     has_walls = bool(shape.has_walls)
@@ -295,7 +293,8 @@ def _step_function(shape, config, sensors, grid, params):
 
         t_wall = photons.wall
         hit, t_hit = first_sensor_hit_xyz(
-            grid, positions, normals, radius, position, direction, t_wall
+            sensors.grid, sensors.positions, sensors.normals, sensors.radius, position,
+            direction, t_wall,
         )
         on_sensor = hit >= 0
         t_surface = where(on_sensor, t_hit, t_wall)
@@ -354,10 +353,10 @@ def _launch_photons(shape, position, direction, n_active, batch: int, dtype) -> 
     )
 
 
-def _follow(loop_key, photons, emit_time, sensors, grid, params, shape, config, batch: int):
+def _follow(loop_key, photons, emit_time, sensors: Sensors, params, shape, config, batch: int):
     """Run the transport loop on a launched batch until no photon is ALIVE (at most
     ``n_bounces`` + 1 steps); returns (status (B,), sensor (B,), arrival time (B,) ns)."""
-    step = _step_function(shape, config, sensors, grid, params)
+    step = _step_function(shape, config, sensors, params)
 
     def running(carry):
         index, photons = carry
@@ -374,7 +373,7 @@ def _follow(loop_key, photons, emit_time, sensors, grid, params, shape, config, 
 
 @functools.partial(jax.jit, static_argnames=("shape", "config", "batch"))
 def _transport_source_batch(
-    key, batch_index, n_active, sensors, grid, params, source, *, shape, config, batch
+    key, batch_index, n_active, sensors: Sensors, params, source, *, shape, config, batch
 ):
     """Emit and transport one batch of a point source (keys split from
     ``fold_in(key, batch_index)``: emission directions, pulse jitter, loop)."""
@@ -386,12 +385,12 @@ def _transport_source_batch(
     emit_time = source.time + source.pulse_width * jax.random.normal(jitter_key, (batch,), dtype)
     position = tuple(jnp.full(batch, source.position[k], dtype) for k in range(3))
     photons = _launch_photons(shape, position, direction, n_active, batch, dtype)
-    return _follow(loop_key, photons, emit_time, sensors, grid, params, shape, config, batch)
+    return _follow(loop_key, photons, emit_time, sensors, params, shape, config, batch)
 
 
 @functools.partial(jax.jit, static_argnames=("shape", "config", "batch"))
 def _transport_bundle_batch(
-    key, batch_index, n_active, sensors, grid, params, position, direction, emit_time,
+    key, batch_index, n_active, sensors: Sensors, params, position, direction, emit_time,
     *, shape, config, batch,
 ):
     """Transport one batch of given photons: position (B, 3) m, unit direction (B, 3),
@@ -401,7 +400,7 @@ def _transport_bundle_batch(
         shape, xyz(position), xyz(direction), n_active, batch, params.absorption_length.dtype
     )
     loop_key = jax.random.fold_in(key, batch_index)
-    return _follow(loop_key, photons, emit_time, sensors, grid, params, shape, config, batch)
+    return _follow(loop_key, photons, emit_time, sensors, params, shape, config, batch)
 
 
 def _step_in_chunks(photons, step, key, chunk: int):
@@ -459,17 +458,14 @@ def grid_for(detector: Detector, grid: SensorGrid | None) -> SensorGrid | None:
     return sensor_grid_for(detector) if grid is None else grid
 
 
-def _device_constants(detector: Detector, params: Params):
-    """(dtype, sensors (positions, normals, radius), params) as arrays of the params'
-    float dtype without weak typing, as the jitted batches take them."""
+def _device_constants(detector: Detector, params: Params, grid: SensorGrid | None):
+    """(dtype, the detector's ``Sensors`` with lookup ``grid`` (None: its own; none in an
+    open medium) and no near grid, params) in the params' float dtype without weak
+    typing, as the jitted batches take them."""
     dtype = jnp.result_type(params.absorption_length)
-    cast = functools.partial(strict_array, dtype=dtype)
-    sensors = (
-        cast(detector.sensor_positions),
-        cast(detector.sensor_normals),
-        cast(detector.sensor_radius),
-    )
-    return dtype, sensors, jax.tree.map(cast, params)
+    grid = grid if detector.shape.has_walls else None
+    sensors = sensors_for(detector, dtype, grid, near=False)
+    return dtype, sensors, jax.tree.map(functools.partial(strict_array, dtype=dtype), params)
 
 
 def _tally_batches(launch, n_batches: int, n_sensors: int, source_time: float, emitted: int):
@@ -536,8 +532,7 @@ def sample_photons(
     check_source(source, detector)
     n_photons = photon_count(source)
     key = as_key(key)
-    grid = grid_for(detector, grid)
-    dtype, sensors, params_c = _device_constants(detector, params)
+    dtype, sensors, params_c = _device_constants(detector, params, grid)
     source_c = jax.tree.map(functools.partial(strict_array, dtype=dtype), source)
     batch = batch_size_for(n_photons, config)
 
@@ -547,7 +542,6 @@ def sample_photons(
             jax.device_put(np.uint32(index)),
             jax.device_put(np.int32(min(batch, n_photons - index * batch))),
             sensors,
-            grid,
             params_c,
             source_c,
             shape=detector.shape,
@@ -633,8 +627,7 @@ def sample_photon_bundle(
     validate_params(params, detector.n_sensors)
     position, direction, time = check_bundle(photons, detector)
     key = as_key(key)
-    grid = grid_for(detector, grid)
-    dtype, sensors, params_c = _device_constants(detector, params)
+    dtype, sensors, params_c = _device_constants(detector, params, grid)
     n_photons = int(time.shape[0])
     batch = batch_size_for(n_photons, config)
 
@@ -645,7 +638,6 @@ def sample_photon_bundle(
             jnp.uint32(index),
             jnp.int32(min(batch, n_photons - start)),
             sensors,
-            grid,
             params_c,
             _padded(position, start, batch, 0.0, dtype),
             _padded(direction, start, batch, (0.0, 0.0, 1.0), dtype),

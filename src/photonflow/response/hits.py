@@ -1,6 +1,8 @@
-"""Sensor response of the sampled mode: detected photons (photoelectrons) -> hits.
+"""Sensor response of the sampled mode, after detection: photoelectrons -> hits.
 
-Per detected photon: the arrival time gets the transit-time spread (Gaussian, sigma
+Which photons become photoelectrons is decided by ``detection.sensor_fate`` (inside
+the sampled mode's photon loop, when a photon meets a sensor). Per
+photoelectron: the arrival time gets the transit-time spread (Gaussian, sigma
 ``params.tts`` ns) and the sensor's ``time_offset`` (ns). Per sensor, dark noise adds
 Poisson(dark_rate x T x 1e-9) photoelectrons uniform in the readout window of length
 T ns (``config.window``, relative to the source time). Only photoelectrons inside the
@@ -23,14 +25,13 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.special import ndtr, ndtri
 
-from .errors import ConfigError, format_value
-from .io.events import Event, Truth, make_event
-from .params import Params
-from .transport.optics import DEFAULT_CONFIG, TransportConfig
+from ..errors import ConfigError, format_value
+from ..io.events import Event, Truth, make_event
+from ..params import Params
+from ..transport.optics import DEFAULT_CONFIG, TransportConfig
 
 if TYPE_CHECKING:
-    from .transport.sampled import PhotonTally
-
+    from ..transport.sampled import PhotonTally
 
 
 def as_generator(key_or_seed) -> np.random.Generator:
@@ -51,7 +52,7 @@ def as_generator(key_or_seed) -> np.random.Generator:
 
 def single_pe_charges(rng: np.random.Generator, count: int, spe_width: float) -> np.ndarray:
     """``count`` single-photoelectron charges (p.e.): Normal(1, spe_width) truncated at 0
-    (the model of ``photonflow.spe``, whose moments the likelihood uses).
+    (the model of ``photonflow.response.spe``, whose moments the likelihood uses).
 
     Drawn by inverse CDF restricted to q >= 0: q = 1 + w ndtri(F0 + u (1 - F0)) with
     F0 = Phi(-1 / w), so every draw is used and none is negative.

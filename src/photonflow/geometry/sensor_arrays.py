@@ -1,0 +1,109 @@
+"""``Sensors``: a detector's sensor arrays and lookup grids as one pytree.
+
+Every jitted function of the transport takes the detector's sensors in this one form:
+centres, inward normals and disc radii as arrays of the computation's float dtype, and
+the two lookup grids of a walled detector (``SensorGrid``): the one that finds the
+sensor a ray hits and the one that lists the sensors near a point. ``sensors_for``
+builds it once per detector object and dtype.
+"""
+
+from __future__ import annotations
+
+from weakref import WeakKeyDictionary
+
+import jax
+import numpy as np
+
+from ..numerics import default_float_dtype, strict_array
+from ..pytree import pytree_dataclass
+from .detector import Detector
+from .sensor_grid import SensorGrid, build_sensor_grid
+
+#: Sensors nearer than this many disc radii to a point are listed by the near-sensor
+#: grid (``near_grid_for``): the expected mode computes their solid angle exactly.
+NEAR_RADII = 4.0
+
+
+@pytree_dataclass
+class Sensors:
+    """A detector's sensors as JAX arrays of one float dtype (a pytree: every jitted
+    transport function takes it).
+
+    Attributes:
+        positions: (N, 3) disc centres, m.
+        normals: (N, 3) inward unit normals.
+        radius: (N,) disc radii, m.
+        grid: the lookup grid of the sensor a ray hits (``build_sensor_grid``); None
+            for an open medium (every sensor is tested).
+        near_grid: the grid listing every sensor within ``NEAR_RADII`` radii of a
+            point (``near_grid_for``); None for an open medium, or to use the far-field
+            solid angle everywhere.
+    """
+
+    positions: jax.Array
+    normals: jax.Array
+    radius: jax.Array
+    grid: SensorGrid | None = None
+    near_grid: SensorGrid | None = None
+
+    @property
+    def n(self) -> int:
+        """Number of sensors N."""
+        return int(self.positions.shape[0])
+
+
+def sensors_for(
+    detector: Detector, dtype=None, grid: SensorGrid | None = None, *, near: bool = True
+) -> Sensors:
+    """The ``Sensors`` of ``detector`` in ``dtype`` (default JAX's default float), with
+    ``grid`` or the detector's own lookup grid (None for an open medium) and, when
+    ``near``, its near-sensor grid (the sampled mode has no use for it). Built once per
+    detector object, dtype and ``near`` (when ``grid`` is None), eagerly even inside a
+    traced function."""
+    dtype = default_float_dtype() if dtype is None else np.dtype(dtype)
+    if grid is not None:
+        return _build(detector, dtype, grid, near)
+    cached = _SENSORS.setdefault(detector, {})
+    if (dtype, near) not in cached:
+        cached[(dtype, near)] = _build(detector, dtype, None, near)
+    return cached[(dtype, near)]
+
+
+def _build(detector: Detector, dtype, grid: SensorGrid | None, near: bool) -> Sensors:
+    """``sensors_for``, uncached."""
+    with jax.ensure_compile_time_eval():
+        if grid is None and detector.shape.has_walls:
+            grid = sensor_grid_for(detector)
+        return Sensors(
+            positions=strict_array(detector.sensor_positions, dtype),
+            normals=strict_array(detector.sensor_normals, dtype),
+            radius=strict_array(detector.sensor_radius, dtype),
+            grid=grid,
+            near_grid=near_grid_for(detector) if near else None,
+        )
+
+
+def sensor_grid_for(detector: Detector) -> SensorGrid:
+    """The sensor lookup grid of a walled detector, built once per detector object."""
+    if detector not in _GRIDS:
+        _GRIDS[detector] = build_sensor_grid(detector)
+    return _GRIDS[detector]
+
+
+def near_grid_for(detector: Detector) -> SensorGrid | None:
+    """Grid listing, for any point, every sensor within ``NEAR_RADII`` radii of it (walled
+    detectors; None for open media), built once per detector object."""
+    if not detector.shape.has_walls:
+        return None
+    if detector not in _NEAR_GRIDS:
+        largest = float(np.max(np.asarray(detector.sensor_radius)))
+        _NEAR_GRIDS[detector] = build_sensor_grid(detector, margin=(NEAR_RADII - 1) * largest)
+    return _NEAR_GRIDS[detector]
+
+
+#: Memo of ``Sensors`` per detector object, keyed by (dtype, near) (a pure cache).
+_SENSORS: WeakKeyDictionary = WeakKeyDictionary()
+#: Memo of near-sensor grids per detector object (a pure cache).
+_NEAR_GRIDS: WeakKeyDictionary = WeakKeyDictionary()
+#: Memo of lookup grids per detector object (a pure cache; detectors are immutable).
+_GRIDS: WeakKeyDictionary = WeakKeyDictionary()
