@@ -1,6 +1,6 @@
 """Direct light of sources with a non-uniform emission density: exact over the disc.
 
-The emission-weighted solid angle (``emission_weighted_solid_angle``) against independent
+The emission-weighted solid angle (the sources' ``disc_fraction``) against independent
 float64 area integrals over the disc; a laser's total direct light in a sphere against
 ray casting; smoothness and gradients across the laser cone's edge; the isotropic
 source unchanged.
@@ -15,16 +15,12 @@ import pytest
 from scipy import integrate
 
 from photonflow.geometry import preset_detector
+from photonflow.geometry.solid_angle import disc_cone_solid_angle, disc_cosine_moment
 from photonflow.params import default_params
 from photonflow.pytree import replace
 from photonflow.response.detection import acceptance_at_cos
 from photonflow.sources import DiffuserSource, IsotropicSource, LaserSource
 from photonflow.transport import direct_light, direct_light_jit, disc_solid_angle
-from photonflow.transport.solid_angle import (
-    disc_cone_solid_angle,
-    disc_cosine_moment,
-    emission_weighted_solid_angle,
-)
 
 # ---- float64 references: integrals over the disc's area, independent of the rim forms ------
 
@@ -183,7 +179,7 @@ def test_diffuser_against_area_integration(distance):
             source = DiffuserSource(
                 position=point, n_photons=1.0, direction=axis, anisotropy=anisotropy
             )
-            got = float(emission_weighted_solid_angle(source, centre, normal, 0.25))
+            got = float(source.disc_fraction(centre, normal, 0.25))
 
         def density(w, anisotropy=anisotropy):
             return (1 + anisotropy * (w @ axis)) / (4 * math.pi)
@@ -377,7 +373,7 @@ def test_laser_gradients_on_the_cone_edge(alpha):
             time=1.0,
         )
         discs = (centres, detector.sensor_normals, detector.sensor_radius)
-        fraction = np.asarray(emission_weighted_solid_angle(source, *discs))
+        fraction = np.asarray(source.disc_fraction(*discs))
         full = np.asarray(disc_solid_angle(position, *discs)) / (
             2 * math.pi * (1 - math.cos(alpha))
         )

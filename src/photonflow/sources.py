@@ -2,8 +2,18 @@
 
 Every source emits ``n_photons`` photons from a point ``position`` (m) at time ``time``
 (ns) with a pulse of width ``pulse_width`` (ns, Gaussian sigma; it spreads arrival
-times, it does not shift their mean). ``emission_density(directions)`` is the angular
-density in photons per steradian per emitted photon, normalised to 1 over the sphere.
+times, it does not shift their mean). Its angular density is axially symmetric about
+an axis, and the transport asks every source the same four things (``PointSource``), so
+a new source plugs in without a change to the transport:
+
+- ``axis(dtype)``: the (3,) unit axis of the density (z for the isotropic source);
+- ``sample_cos(u)``: cos(theta) to the axis from uniforms u in [0, 1) (inverse CDF of
+  the density in cos theta; reparameterised, so smooth in the source's fields);
+- ``emission_density(directions)``: photons per steradian per emitted photon,
+  normalised to 1 over the sphere;
+- ``disc_fraction(centre, normal, radius)``: the fraction of the photons emitted
+  towards each of a set of discs (the density integrated exactly over the disc's solid
+  angle, by the rim integrals of ``geometry.solid_angle``).
 
 Python numbers, lists and numpy arrays given to a constructor are converted to JAX
 arrays of the default float dtype (float32 unless 64-bit mode is on); JAX arrays and
@@ -14,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
@@ -21,7 +32,13 @@ import numpy as np
 
 from .errors import ConfigError, format_value
 from .geometry.detector import Detector
-from .numerics import strict_array, where
+from .geometry.solid_angle import (
+    disc_cone_solid_angle,
+    disc_cosine_moment,
+    disc_solid_angle,
+    versine,
+)
+from .numerics import clip, strict_array, where
 from .pytree import pytree_dataclass
 
 #: Allowed deviation of a direction's length from 1 in ``check_source``.
@@ -40,6 +57,59 @@ def _unit(vector):
     """``vector / |vector|`` along the last axis."""
     vector = jnp.asarray(vector)
     return vector / jnp.linalg.norm(vector, axis=-1, keepdims=True)
+
+
+def isotropic_cos(u):
+    """cos(theta) of an isotropic direction from a uniform u in [0, 1)."""
+    return 2.0 * u - 1.0
+
+
+def cone_cos(u, opening_angle):
+    """cos(theta) uniform in solid angle within a cone of half-angle ``opening_angle`` (rad)."""
+    return 1.0 - u * (1.0 - jnp.cos(opening_angle))
+
+
+def linear_anisotropy_cos(u, anisotropy):
+    """cos(theta) with density (1 + a cos theta) / 2 in cos(theta), a in [-1, 1] (inverse CDF).
+
+    Solves (a / 2) c^2 + c + 1 - a / 2 - 2 u = 0 by the root
+    c = 2 (2u - 1 + a/2) / (1 + sqrt(1 - 2 a (1 - a/2 - 2u))), exact for a = 0 too.
+    """
+    half = 0.5 * anisotropy
+    discriminant = jnp.maximum(1.0 - 4.0 * half * (1.0 - half - 2.0 * u), 0.0)
+    return clip(2.0 * (2.0 * u - 1.0 + half) / (1.0 + jnp.sqrt(discriminant)), -1.0, 1.0)
+
+
+def _axis(vector, dtype):
+    """The unit vector along ``vector`` in ``dtype``."""
+    axis = jnp.asarray(vector, dtype=dtype)
+    return axis / jnp.linalg.norm(axis)
+
+
+@runtime_checkable
+class PointSource(Protocol):
+    """What the transport needs of a point source (the module docstring): its fields
+    ``position`` (3,) m, ``n_photons``, ``time`` ns and ``pulse_width`` ns, and the four
+    methods below. ``IsotropicSource``, ``LaserSource`` and ``DiffuserSource`` are
+    point sources; another class with these members works in both modes."""
+
+    position: jax.Array
+    n_photons: jax.Array
+    time: jax.Array
+    pulse_width: jax.Array
+
+    def axis(self, dtype=None) -> jax.Array:
+        """(3,) unit axis of the angular density, in ``dtype``."""
+
+    def sample_cos(self, u) -> jax.Array:
+        """cos(theta) to the axis from uniforms u in [0, 1) (inverse CDF)."""
+
+    def emission_density(self, unit_directions) -> jax.Array:
+        """Photons per steradian per emitted photon for directions (..., 3)."""
+
+    def disc_fraction(self, centre, normal, radius) -> jax.Array:
+        """(...,) fraction of the photons emitted towards discs: centres (..., 3) m, unit
+        normals (..., 3), radii (...,) m."""
 
 
 @pytree_dataclass
@@ -61,10 +131,23 @@ class IsotropicSource:
     def __post_init__(self):
         _as_leaves(self)
 
+    def axis(self, dtype=None):
+        """(3,) axis of the angular density: z (the density has no preferred direction)."""
+        return jnp.array([0.0, 0.0, 1.0], dtype)
+
+    def sample_cos(self, u):
+        """cos(theta) = 2u - 1 from uniforms u in [0, 1)."""
+        return isotropic_cos(jnp.asarray(u))
+
     def emission_density(self, unit_directions):
         """Photons per steradian per emitted photon, 1 / (4 pi), for directions (..., 3)."""
         unit_directions = jnp.asarray(unit_directions)
         return jnp.full(unit_directions.shape[:-1], 1.0 / (4.0 * math.pi), unit_directions.dtype)
+
+    def disc_fraction(self, centre, normal, radius):
+        """Omega / (4 pi) per disc (``disc_solid_angle``); centres (..., 3) m, unit
+        normals (..., 3), radii (...,) m."""
+        return disc_solid_angle(self.position, centre, normal, radius) / (4.0 * math.pi)
 
 
 @pytree_dataclass
@@ -94,6 +177,15 @@ class LaserSource:
     def __post_init__(self):
         _as_leaves(self)
 
+    def axis(self, dtype=None):
+        """(3,) unit cone axis (``direction`` normalised)."""
+        return _axis(self.direction, dtype)
+
+    def sample_cos(self, u):
+        """cos(theta) uniform in solid angle inside the cone, from uniforms u in [0, 1)."""
+        u = jnp.asarray(u)
+        return cone_cos(u, jnp.asarray(self.opening_angle, u.dtype))
+
     def emission_density(self, unit_directions):
         """Photons per steradian per emitted photon for directions (..., 3): 1/(2 pi (1 - cos
         alpha)) inside the cone, 0 outside."""
@@ -101,6 +193,15 @@ class LaserSource:
         cos_alpha = jnp.cos(self.opening_angle)
         inside = cos_angle >= cos_alpha
         return where(inside, 1.0 / (2.0 * math.pi * (1.0 - cos_alpha)), 0.0)
+
+    def disc_fraction(self, centre, normal, radius):
+        """Omega(disc image inside the cone) / (2 pi (1 - cos alpha)) per disc
+        (``disc_cone_solid_angle``: smooth in the position, direction and opening angle,
+        also for discs on the cone's edge); centres (..., 3) m, unit normals, radii m."""
+        inside = disc_cone_solid_angle(
+            self.position, self.direction, self.opening_angle, centre, normal, radius
+        )
+        return inside / (2.0 * math.pi * versine(self.opening_angle))
 
 
 @pytree_dataclass
@@ -128,10 +229,26 @@ class DiffuserSource:
     def __post_init__(self):
         _as_leaves(self)
 
+    def axis(self, dtype=None):
+        """(3,) unit axis of the anisotropy (``direction`` normalised)."""
+        return _axis(self.direction, dtype)
+
+    def sample_cos(self, u):
+        """cos(theta) with density (1 + a cos theta) / 2 in cos theta, from uniforms u."""
+        u = jnp.asarray(u)
+        return linear_anisotropy_cos(u, jnp.asarray(self.anisotropy, u.dtype))
+
     def emission_density(self, unit_directions):
         """Photons per steradian per emitted photon, (1 + a cos theta) / (4 pi), for (..., 3)."""
         cos_angle = jnp.sum(jnp.asarray(unit_directions) * _unit(self.direction), axis=-1)
         return (1.0 + self.anisotropy * cos_angle) / (4.0 * math.pi)
+
+    def disc_fraction(self, centre, normal, radius):
+        """(Omega + a M) / (4 pi) per disc, M the disc's cosine moment about the axis
+        (``disc_cosine_moment``); centres (..., 3) m, unit normals, radii m."""
+        omega = disc_solid_angle(self.position, centre, normal, radius)
+        moment = disc_cosine_moment(self.position, self.direction, centre, normal, radius)
+        return (omega + self.anisotropy * moment) / (4.0 * math.pi)
 
 
 Source = IsotropicSource | LaserSource | DiffuserSource

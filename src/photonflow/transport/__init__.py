@@ -3,13 +3,13 @@ mode) and photon-by-photon Monte Carlo (sampled mode), on one description of the
 (``optics``). See docs/transport.md."""
 
 from ..constants import SPEED_OF_LIGHT
+from ..geometry.solid_angle import disc_solid_angle, plane_basis
 from .direct import direct_light, direct_light_jit, interpolate_acceptance
 from .expected import expected, expected_function, sensor_light
 from .optics import TransportConfig
 from .production import produce_events
 from .pseudo_data import sample, sample_events
 from .sampled import sample_photon_bundle, sample_photons
-from .solid_angle import disc_solid_angle, plane_basis
 from .tracks import PhotonBundle, random_tracks
 
 __all__ = [

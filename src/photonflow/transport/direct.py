@@ -8,7 +8,7 @@ d_j = |c_j - p| and the unit direction w_j = (c_j - p) / d_j:
 
 N photons emitted, F_j the fraction of them emitted towards the disc, i.e. the source's
 emission density integrated exactly over the disc's solid angle
-(``solid_angle.emission_weighted_solid_angle``: Omega_j / 4 pi for the isotropic source,
+(``source.disc_fraction``: Omega_j / 4 pi for the isotropic source,
 a rim integral for the diffuser's cos theta term and for the part of the disc inside a
 laser's cone, so a sensor on the cone's edge gets its partial light, smoothly), QE the
 global quantum efficiency, A the angular acceptance interpolated
@@ -35,7 +35,6 @@ from ..geometry.sensor_arrays import Sensors, sensors_for
 from ..numerics import strict_array, where
 from ..params import Params
 from ..response.detection import acceptance_at_cos
-from .solid_angle import emission_weighted_solid_angle
 
 
 def interpolate_acceptance(table, incidence):
@@ -84,7 +83,7 @@ def direct_light_jit(sensors: Sensors, params: Params, source):
     cos_incidence = -jnp.sum(direction * normals, axis=-1)
     facing = cos_incidence > 0
 
-    fraction = emission_weighted_solid_angle(source, centres, normals, radii)
+    fraction = source.disc_fraction(centres, normals, radii)
     attenuation = jnp.exp(
         -distance
         * (

@@ -59,12 +59,12 @@ import numpy as np
 from ..geometry.sensor_arrays import Sensors
 from ..geometry.sensor_grid import grid_candidates_xyz
 from ..geometry.shapes import Box, Cylinder, Sphere
+from ..geometry.solid_angle import plane_basis
 from ..numerics import hypot, safe_sqrt, where
 from ..params import Params
 from ..pytree import pytree_dataclass
 from ..response.detection import acceptance_at_cos
 from .optics import interaction_rates, travel_time
-from .solid_angle import plane_basis
 
 #: Azimuths of the grid that brackets reflection points on a circle.
 GRID = 96

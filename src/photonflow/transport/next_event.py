@@ -25,6 +25,7 @@ import jax.numpy as jnp
 
 from ..geometry.sensor_arrays import Sensors
 from ..geometry.sensor_grid import grid_candidates
+from ..geometry.solid_angle import disc_solid_angle_local
 from ..numerics import where
 from ..response.detection import acceptance_at_cos
 from .optics import (
@@ -35,7 +36,6 @@ from .optics import (
     rayleigh_density,
     travel_time,
 )
-from .solid_angle import disc_solid_angle_local
 
 #: Rays whose next-event estimates are computed together (bounds memory to ~ block x N).
 NEE_BLOCK = 128

@@ -27,7 +27,8 @@ g(R) - g(R0) is written with R0^2 - R^2 = 2 r q . e(t), free of cancellation:
                                          / (R R0 (R + h) (R0 + h)) ].
 
 The emission-weighted solid angle of a source with an axially symmetric density S(theta)
-(``emission_weighted_solid_angle``) is likewise a rim integral: by Stokes' theorem on the
+(the sources' ``disc_fraction``, ``photonflow.sources``) is likewise a rim integral: by
+Stokes' theorem on the
 unit sphere, integral_R S dOmega = rim integral of G(theta) dphi, G(theta) = integral_0^theta
 S sin, (theta, phi) polar angles about the source axis. The diffuser needs the cosine
 moment (``disc_cosine_moment``), the laser the solid angle of the disc's image inside its
@@ -45,7 +46,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..numerics import clip, where
-from ..sources import DiffuserSource, IsotropicSource, LaserSource
 
 #: Default number of rim nodes of the trapezoid rule.
 DEFAULT_NODES = 64
@@ -348,43 +348,6 @@ def _sees_disc(to_centre, normal, radius, direction):
     t = height / where(meets, along, 1.0)
     miss = t * direction - to_centre
     return meets & (jnp.sum(miss * miss) < radius * radius)
-
-
-def emission_weighted_solid_angle(source, centre, normal, radius):
-    """Fraction of a source's photons emitted towards each disc (straight lines).
-
-    The integral over the disc's solid angle of the source's emission density S (per sr
-    per photon, normalised to 1 over the sphere), exact for every source kind, whatever
-    the disc's size and distance:
-
-    - ``IsotropicSource``: Omega / (4 pi) (``disc_solid_angle``);
-    - ``DiffuserSource``, S = (1 + a cos theta) / (4 pi): (Omega + a M) / (4 pi), M the
-      disc's cosine moment about the source axis (``disc_cosine_moment``);
-    - ``LaserSource``, S = 1 / (2 pi (1 - cos alpha)) inside the cone of half-angle alpha:
-      Omega(image n cone) / (2 pi (1 - cos alpha)) (``disc_cone_solid_angle``), smooth
-      in the position, direction and opening angle also for discs on the cone's edge.
-
-    Args:
-        source: an ``IsotropicSource``, ``LaserSource`` or ``DiffuserSource`` (position m).
-        centre: (..., 3) disc centres, m. normal: (..., 3) unit normals (either sign).
-        radius: (...,) disc radii, m.
-
-    Returns:
-        (...,) dimensionless fractions in [0, 1] (both faces of a disc count).
-    """
-    position = source.position
-    if isinstance(source, IsotropicSource):
-        return disc_solid_angle(position, centre, normal, radius) / (4.0 * math.pi)
-    if isinstance(source, DiffuserSource):
-        omega = disc_solid_angle(position, centre, normal, radius)
-        moment = disc_cosine_moment(position, source.direction, centre, normal, radius)
-        return (omega + source.anisotropy * moment) / (4.0 * math.pi)
-    if isinstance(source, LaserSource):
-        inside = disc_cone_solid_angle(
-            position, source.direction, source.opening_angle, centre, normal, radius
-        )
-        return inside / (2.0 * math.pi * versine(source.opening_angle))
-    raise TypeError(f"no emission-weighted solid angle for {type(source).__name__}")
 
 
 def disc_solid_angle_local(in_plane_sq, height, radius, n_nodes: int = DEFAULT_NODES):
