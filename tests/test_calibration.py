@@ -371,9 +371,9 @@ def test_a_parameter_running_off_to_infinity_is_refused_in_one_line():
     """A free value that leaves the finite range during a fit (the SK campaign's
     absorption length did, at the preset's 552 m) is named in a one-line error instead
     of failing later inside the linear algebra."""
-    from photonflow.calibration.fit import _refuse_runaway
+    from photonflow.calibration.guards import refuse_runaway
 
-    _refuse_runaway({"absorption_length": np.array(4.5), "efficiency": np.zeros(3)}, 2)
+    refuse_runaway({"absorption_length": np.array(4.5), "efficiency": np.zeros(3)}, 2)
     with pytest.raises(ConfigError, match="absorption_length: ran off") as refused:
-        _refuse_runaway({"absorption_length": np.array(np.inf), "efficiency": np.zeros(3)}, 3)
+        refuse_runaway({"absorption_length": np.array(np.inf), "efficiency": np.zeros(3)}, 3)
     assert "\n" not in str(refused.value) and "efficiency" not in str(refused.value)

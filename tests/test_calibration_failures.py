@@ -48,7 +48,7 @@ def test_a_run_with_a_non_finite_prediction_is_named(degenerate_runs, monkeypatc
     """A run whose expected charge is not finite stops the fit before it starts, in one
     line naming the run, the sensors and the source."""
     detector, truth, runs = degenerate_runs
-    original = objective._mean_jit
+    original = objective.mean_jit
     calls = []
 
     def poisoned(*args, **kwargs):
@@ -56,7 +56,7 @@ def test_a_run_with_a_non_finite_prediction_is_named(degenerate_runs, monkeypatc
         calls.append(1)
         return mean.at[7].set(np.nan) if len(calls) == 2 else mean
 
-    monkeypatch.setattr(objective, "_mean_jit", poisoned)
+    monkeypatch.setattr(objective, "mean_jit", poisoned)
     with pytest.raises(pf.ConfigError) as error:
         pf.calibrate(detector, runs, truth, ["absorption_length"], config=CONFIG)
     message = str(error.value)

@@ -1,6 +1,7 @@
-"""The independent-ray stage of the calibration (``fit._independent_ray_steps``): the
-averaged ray sets of its second root and the extrapolation of the two roots to
-infinitely many rays (docs/calibration.md, "Ray noise and the independent-ray score")."""
+"""The independent-ray stage of the calibration
+(``independent_ray_stage.independent_ray_steps``): the averaged ray sets of its second
+root and the extrapolation of the two roots to infinitely many rays (docs/calibration.md,
+"Ray noise and the independent-ray score")."""
 
 from __future__ import annotations
 
@@ -14,12 +15,8 @@ import photonflow as pf
 from photonflow.calibration import calibrate
 from photonflow.calibration.fit import DEFAULT_JACOBIAN_SETS, EXTRAPOLATION_SETS
 from photonflow.calibration.layout import free_layout
-from photonflow.calibration.objective import (
-    CalibrationProblem,
-    _mean_jit,
-    ray_set_keys,
-    summed_charge_nll,
-)
+from photonflow.calibration.objective import CalibrationProblem, ray_set_keys, summed_charge_nll
+from photonflow.calibration.run_terms import mean_jit
 from photonflow.calibration.runs import prepare_runs
 from photonflow.errors import ConfigError
 from photonflow.transport.optics import TransportConfig
@@ -57,7 +54,7 @@ def test_charge_sets_average_the_expected_charges_of_independent_ray_sets(toy):
     for sets in (1, 2):
         total = 0.0
         for data, static in zip(problem.arrays, problem.statics, strict=True):
-            means = [np.asarray(_mean_jit(theta, problem.base, problem.sensors,
+            means = [np.asarray(mean_jit(theta, problem.base, problem.sensors,
                                           dataclasses.replace(data, key=key), None,
                                           static=static), np.float64)
                      for key in ray_set_keys(data.key, sets)]

@@ -6,8 +6,8 @@ strong scattering), absorption, scattering and wall reflectivity free. The refer
 the root of the independent-ray score with the expected charges M_a and the derivatives
 J_b each averaged over ``--reference-sets`` ray sets (its ray-noise bias is that much
 smaller). Then for ``--keys`` independent ray keys of ``--rays`` rays the fit's stage
-(``fit._independent_ray_steps``) gives the one-set root theta_1 and the extrapolated
-root; printed per key and on average is each one's distance from the reference in
+(``independent_ray_stage.independent_ray_steps``) gives the one-set root theta_1 and
+the extrapolated root; printed per key and on average is each one's distance from the reference in
 units of the one-set root's error:
 
     python examples/calibration/ray_extrapolation.py [--rays 64] [--keys 8]
@@ -27,7 +27,7 @@ import jax
 import numpy as np
 
 import photonflow as pf
-from photonflow.calibration.fit import _independent_ray_steps, _root_steps
+from photonflow.calibration.independent_ray_stage import independent_ray_steps, root_steps
 from photonflow.calibration.layout import free_layout
 from photonflow.calibration.objective import CalibrationProblem
 from photonflow.calibration.runs import prepare_runs
@@ -76,11 +76,11 @@ def main() -> None:
     reference_problem = problem(999)
     steps = dict(history=[], started=0.0, step_tolerance=0.01, callback=None, stage="ref",
                  charge_sets=sets)
-    reference, parts, noise, *_ = _root_steps(
+    reference, parts, noise, *_ = root_steps(
         reference_problem, reference_problem.initial_theta(), ray_noise=None, **steps)
     frozen = dataclasses.replace(
         parts, jacobians=reference_problem.independent_jacobians(reference, sets))
-    reference, *_ = _root_steps(reference_problem, reference, ray_noise=noise,
+    reference, *_ = root_steps(reference_problem, reference, ray_noise=noise,
                                 frozen=frozen, **steps)
     reference_vector = unconstrained_vector(layout, reference)
     print(f"reference ({sets} x {args.rays} rays), unconstrained:"
@@ -90,7 +90,7 @@ def main() -> None:
     for key in range(args.keys):
         fit = problem(key)
         history = []
-        theta, _, covariance, converged, _ = _independent_ray_steps(
+        theta, _, covariance, converged, _ = independent_ray_steps(
             fit, reference, history, 0.0, 0.01, None, extrapolate=True)
         sigma = np.sqrt(np.diag(covariance.covariance()[0]))
         last_one = [h for h in history if h["stage"] == "independent rays"][-1]["values"]

@@ -40,7 +40,7 @@ class CalibrationResult:
             of the point the step started from; its last entry, ``"stage":
             "extrapolated"``, is the result, with the diagnostics
             ``"ray_noise_share"``, ``"ray_noise_bias"`` and
-            ``"ray_count_extrapolation"`` (``fit._independent_ray_steps``).
+            ``"ray_count_extrapolation"`` (``independent_ray_stage.independent_ray_steps``).
         free: the free fields.
         method: step rule used ("gauss-newton", "lbfgs", "adam").
         likelihood: "charge" or "charge+time".
