@@ -19,9 +19,9 @@ from photonflow.calibration.conventional import (
     attenuation_slope,
     direct_run,
     predicted_indirect,
-    scan_minimum,
 )
 from photonflow.calibration.runs import prepare_runs
+from photonflow.calibration.scans import scan_minimum
 from photonflow.errors import ConfigError
 from photonflow.io import make_event
 from photonflow.transport.optics import TransportConfig

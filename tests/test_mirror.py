@@ -15,14 +15,9 @@ from photonflow.sources import IsotropicSource
 from photonflow.transport import rays
 from photonflow.transport.emission import sample_directions
 from photonflow.transport.expected import expected_jit
-from photonflow.transport.mirror import (
-    FOCUSING_LIMIT,
-    _ellipses_covered,
-    circle_reflections,
-    focusing_ratio,
-    mirror_light,
-    mirror_paths,
-)
+from photonflow.transport.mirror import FOCUSING_LIMIT, mirror_light, mirror_paths
+from photonflow.transport.mirror_cover import _ellipses_covered
+from photonflow.transport.mirror_geometry import circle_reflections, focusing_ratio
 from photonflow.transport.optics import TransportConfig, specular_direction
 
 

@@ -28,8 +28,9 @@ from photonflow.transport.optics import (
     specular_direction,
     specular_direction_xyz,
 )
+from photonflow.transport.photon_loop import _alive_lanes, _wall_response
 from photonflow.transport.pseudo_data import sample, sample_events
-from photonflow.transport.sampled import _alive_lanes, _wall_response, sample_photons
+from photonflow.transport.sampled import sample_photons
 
 SPHERE = preset_detector("TOY_SPHERE")
 CYLINDER = preset_detector("TOY_CYLINDER")

@@ -37,22 +37,21 @@ import time
 from collections.abc import Callable, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ConfigError
 from ..geometry.detector import Detector
 from ..likelihood import dark_expectation
-from ..params import Params, to_unconstrained, validate_params
+from ..params import Params, validate_params
 from ..response.spe import single_pe_moments
 from ..sources import IsotropicSource
 from ..transport.direct import direct_light
 from ..transport.expected import expected
 from ..transport.optics import TransportConfig
 from .layout import free_layout
-from .objective import CalibrationProblem
 from .result import CalibrationResult
 from .runs import RunData, prepare_runs, run_provenance
+from .scans import SCAN_STEP, LikelihoodScanner, physical_value
 
 #: Scalar fields the sequential method fits by a one-dimensional likelihood scan (block c).
 SCAN_FIELDS = (
@@ -70,10 +69,6 @@ SEQUENTIAL_FIELDS = ("absorption_length", "efficiency", *SCAN_FIELDS)
 
 #: How blocks a and b treat scattered and reflected light (``sequential_calibration``).
 INDIRECT = ("ignore", "subtract")
-
-#: Default step of the coarse scan grid in unconstrained units (log for lengths, logit
-#: for probabilities, atanh for mie_g).
-SCAN_STEP = 0.25
 
 #: An absorption length from a slope that leaves no absorption (1 / L_att at or below
 #: 1 / L_scat + 1 / L_mie) is set to this, m.
@@ -105,23 +100,6 @@ class DirectRun:
     geometry: np.ndarray
     distance: np.ndarray
     indirect: np.ndarray
-
-
-@dataclasses.dataclass(frozen=True)
-class ScanResult:
-    """Outcome of a one-dimensional likelihood scan (unconstrained coordinates).
-
-    Attributes:
-        value: position of the minimum.
-        sigma: 1-sigma error from the parabola's curvature (inf if it is not convex).
-        n_evaluations: likelihood evaluations used.
-        at_edge: the minimum ran into the scan's extension limit.
-    """
-
-    value: float
-    sigma: float
-    n_evaluations: int
-    at_edge: bool
 
 
 def attenuation_inverse(params: Params) -> float:
@@ -276,65 +254,6 @@ def absorption_from_attenuation(inverse_length: float, error: float, params: Par
     return length, length**2 * error
 
 
-def _parabola(u: np.ndarray, f: np.ndarray) -> tuple[float, float]:
-    """(vertex, second derivative) of the parabola through three points."""
-    a, b, _ = np.polyfit(u - u[1], f - f[1], 2)
-    curvature = 2.0 * a
-    if curvature <= 0:
-        return float(u[np.argmin(f)]), 0.0
-    return float(u[1] - b / (2.0 * a)), float(curvature)
-
-
-def scan_minimum(function: Callable[[float], float], start: float, step: float = SCAN_STEP,
-                 max_extensions: int = 8) -> ScanResult:
-    """Minimise a 1-D function (-log L in unconstrained coordinates) by scanning.
-
-    A coarse grid of five points ``start + k step`` (k = -2..2), extended by ``step`` while
-    the minimum lies on an edge (at most ``max_extensions`` times); the parabola through
-    the lowest point and its neighbours; then three points at a quarter step around that
-    vertex and their parabola, whose vertex is the result and whose curvature gives the
-    1-sigma error (-log L rises by 1/2).
-    """
-    points = {start + k * step: function(start + k * step) for k in range(-2, 3)}
-    at_edge = False
-    for _ in range(max_extensions):
-        grid = sorted(points)
-        best = min(grid, key=points.get)
-        if best == grid[0]:
-            points[grid[0] - step] = function(grid[0] - step)
-        elif best == grid[-1]:
-            points[grid[-1] + step] = function(grid[-1] + step)
-        else:
-            break
-    else:
-        at_edge = True
-    grid = sorted(points)
-    index = int(np.clip(np.argmin([points[u] for u in grid]), 1, len(grid) - 2))
-    around = np.array(grid[index - 1:index + 2])
-    vertex, _ = _parabola(around, np.array([points[u] for u in around]))
-    vertex = float(np.clip(vertex, around[0], around[-1]))
-    fine = vertex + 0.25 * step * np.array([-1.0, 0.0, 1.0])
-    values = np.array([function(u) for u in fine])
-    value, curvature = _parabola(fine, values)
-    value = float(np.clip(value, fine[0] - step, fine[-1] + step))
-    sigma = 1.0 / math.sqrt(curvature) if curvature > 0 else math.inf
-    return ScanResult(value, sigma, len(points) + 3, at_edge)
-
-
-def _physical(name: str, unconstrained: float, sigma: float, params: Params) -> tuple:
-    """(value, error) of field ``name`` in physical units from its unconstrained value
-    and error, by the derivative of the inverse transform."""
-    base = to_unconstrained(params)
-    moved = dataclasses.replace(base, **{name: jnp.asarray(unconstrained, base.efficiency.dtype)})
-
-    def value_of(u):
-        return getattr(Params.from_unconstrained(dataclasses.replace(moved, **{name: u})), name)
-
-    point = getattr(moved, name)
-    value, slope = jax.jvp(value_of, (point,), (jnp.ones_like(point),))
-    return float(value), abs(float(slope)) * sigma
-
-
 def _central_index(detector: Detector, runs: Sequence[RunData], isotropic: list[int],
                    central_run: int | None) -> int:
     """The run for block a: ``central_run``, else the isotropic run nearest the centre of
@@ -359,36 +278,6 @@ def _check_free(free, n_sensors: int) -> tuple[str, ...]:
             f" {', '.join(SEQUENTIAL_FIELDS)}"
         )
     return layout.names
-
-
-class _Scanner:
-    """-log L of all runs (charge likelihood) as a function of one field, the others at
-    ``params``; a new problem per scan, compiled code shared across them."""
-
-    def __init__(self, detector, prepared, config, key):
-        self.detector, self.prepared, self.config, self.key = detector, prepared, config, key
-        self.evaluations = 0
-
-    def problem(self, params: Params, name: str) -> CalibrationProblem:
-        layout = free_layout([name], self.detector.n_sensors)
-        return CalibrationProblem(self.detector, self.prepared, params, layout, "charge",
-                                  self.config, self.key)
-
-    def loss(self, params: Params) -> float:
-        """-log L at ``params``."""
-        problem = self.problem(params, "absorption_length")
-        self.evaluations += 1
-        return problem.value(problem.initial_theta())
-
-    def scan(self, params: Params, name: str, step: float) -> ScanResult:
-        problem = self.problem(params, name)
-        dtype = problem.initial_theta()[name].dtype
-
-        def function(u: float) -> float:
-            self.evaluations += 1
-            return problem.value({name: jnp.asarray(u, dtype)})
-
-        return scan_minimum(function, float(problem.initial_theta()[name]), step)
 
 
 def sequential_calibration(
@@ -466,25 +355,9 @@ def sequential_calibration(
     config = TransportConfig() if config is None else config
     key = jax.random.key(0) if key is None else key
     prepared = prepare_runs(runs, detector, "charge")
-    isotropic = [i for i, run in enumerate(prepared) if isinstance(run.source, IsotropicSource)]
-    if ("efficiency" in names or "absorption_length" in names) and not isotropic:
-        raise ConfigError("efficiency and absorption_length need isotropic runs; none given")
-    scanned = [name for name in names if name in SCAN_FIELDS]
-    scanner = _Scanner(detector, prepared, config, key)
-
-    direct = [direct_run(detector, init_params, prepared[i], i, config.window) for i in isotropic]
-    central = None
-    if "efficiency" in names:
-        index = _central_index(detector, prepared, isotropic, central_run)
-        central = direct[isotropic.index(index)]
-    if "absorption_length" in names and len(direct) < 1 + (central is not None):
-        raise ConfigError(
-            "absorption_length: needs an isotropic run besides the central one the"
-            " efficiencies come from (the slope of one run's own efficiency table is no"
-            " measurement)"
-        )
-    reference_mean = float(np.mean(np.asarray(init_params.efficiency, np.float64)))
-
+    blocks = _Blocks.prepare(detector, prepared, init_params, names, central_run, config, key,
+                             indirect, min_charge)
+    scanner = LikelihoodScanner(detector, prepared, config, key)
     params = init_params
     errors = {name: np.zeros_like(np.asarray(getattr(init_params, name), np.float64))
               for name in names}
@@ -493,36 +366,10 @@ def sequential_calibration(
     converged, message = False, f"stopped after n_iterations = {n_iterations}"
     for iteration in range(1, int(n_iterations) + 1):
         before = params
-        if indirect == "subtract" and direct and ("efficiency" in names
-                                                  or "absorption_length" in names):
-            direct = [
-                dataclasses.replace(run, indirect=predicted_indirect(
-                    detector, params, prepared[run.index], config,
-                    jax.random.fold_in(key, run.index)))
-                for run in direct
-            ]
-            if central is not None:
-                central = direct[isotropic.index(central.index)]
-        if central is not None:
-            efficiency, error, _ = central_efficiencies(
-                central, attenuation_inverse(params), np.asarray(params.efficiency, np.float64),
-                reference_mean, min_charge,
-            )
-            params = params.replace(efficiency=efficiency)
-            errors["efficiency"] = error
-        if "absorption_length" in names:
-            slope_runs = [run for run in direct if central is None or run.index != central.index]
-            inverse, error, _ = attenuation_slope(
-                slope_runs, np.asarray(params.efficiency, np.float64),
-                attenuation_inverse(params), min_charge, errors.get("efficiency"),
-            )
-            length, errors["absorption_length"] = absorption_from_attenuation(
-                inverse, error, params
-            )
-            params = params.replace(absorption_length=length)
-        for name in scanned:
+        params = blocks.direct_light_blocks(params, errors)
+        for name in (name for name in names if name in SCAN_FIELDS):
             result = scanner.scan(params, name, scan_step)
-            value, errors[name] = _physical(name, result.value, result.sigma, params)
+            value, errors[name] = physical_value(name, result.value, result.sigma, params)
             params = params.replace(**{name: value})
         loss = scanner.loss(params)
         values = _scalar_values(params, names)
@@ -536,7 +383,109 @@ def sequential_calibration(
             message = (f"converged: the last pass moved every free value by {moved:.2g}"
                        f" < {step_tolerance:g} of its error")
             break
+    settings = {
+        "n_rays": config.n_rays,
+        "n_bounces": config.n_bounces,
+        "window_ns": list(config.window),
+        "n_iterations": int(n_iterations),
+        "indirect": indirect,
+        "min_charge_pe": float(min_charge),
+        "scan_step": float(scan_step),
+        "likelihood_evaluations": scanner.evaluations,
+    }
+    return _sequential_result(detector, prepared, params, errors, names, history, converged,
+                              message, settings, truth, started)
 
+
+@dataclasses.dataclass
+class _Blocks:
+    """The direct-light blocks of the sequential calibration (a: efficiencies from the
+    central run, b: the attenuation slope) and the isotropic runs they use, reduced to
+    direct light (``DirectRun``); ``refresh`` updates the runs' subtracted indirect
+    light for ``indirect="subtract"``."""
+
+    detector: Detector
+    prepared: list
+    names: tuple
+    config: TransportConfig
+    key: object
+    indirect: str
+    min_charge: float
+    isotropic: list
+    direct: list
+    central: DirectRun | None
+    reference_mean: float
+
+    @classmethod
+    def prepare(cls, detector, prepared, init_params, names, central_run, config, key,
+                indirect, min_charge) -> _Blocks:
+        """Reduce the isotropic runs to direct light and pick the central one; one-line
+        ``ConfigError`` where the free fields need runs that are not there."""
+        isotropic = [i for i, run in enumerate(prepared)
+                     if isinstance(run.source, IsotropicSource)]
+        if ("efficiency" in names or "absorption_length" in names) and not isotropic:
+            raise ConfigError("efficiency and absorption_length need isotropic runs; none given")
+        direct = [direct_run(detector, init_params, prepared[i], i, config.window)
+                  for i in isotropic]
+        central = None
+        if "efficiency" in names:
+            index = _central_index(detector, prepared, isotropic, central_run)
+            central = direct[isotropic.index(index)]
+        if "absorption_length" in names and len(direct) < 1 + (central is not None):
+            raise ConfigError(
+                "absorption_length: needs an isotropic run besides the central one the"
+                " efficiencies come from (the slope of one run's own efficiency table is no"
+                " measurement)"
+            )
+        reference_mean = float(np.mean(np.asarray(init_params.efficiency, np.float64)))
+        return cls(detector, prepared, tuple(names), config, key, indirect, min_charge,
+                   isotropic, direct, central, reference_mean)
+
+    def direct_light_blocks(self, params: Params, errors: dict) -> Params:
+        """One pass of blocks a and b at ``params`` (each with the others' current
+        values); fills ``errors`` and returns the updated parameters."""
+        names, min_charge = self.names, self.min_charge
+        if self.indirect == "subtract" and self.direct and (
+                "efficiency" in names or "absorption_length" in names):
+            self.refresh(params)
+        if self.central is not None:
+            efficiency, error, _ = central_efficiencies(
+                self.central, attenuation_inverse(params),
+                np.asarray(params.efficiency, np.float64), self.reference_mean, min_charge,
+            )
+            params = params.replace(efficiency=efficiency)
+            errors["efficiency"] = error
+        if "absorption_length" in names:
+            central = self.central
+            slope_runs = [run for run in self.direct
+                          if central is None or run.index != central.index]
+            inverse, error, _ = attenuation_slope(
+                slope_runs, np.asarray(params.efficiency, np.float64),
+                attenuation_inverse(params), min_charge, errors.get("efficiency"),
+            )
+            length, errors["absorption_length"] = absorption_from_attenuation(
+                inverse, error, params
+            )
+            params = params.replace(absorption_length=length)
+        return params
+
+    def refresh(self, params: Params) -> None:
+        """Subtract the scattered and reflected light the expected mode predicts at
+        ``params`` (``predicted_indirect``) in every direct-light run."""
+        self.direct = [
+            dataclasses.replace(run, indirect=predicted_indirect(
+                self.detector, params, self.prepared[run.index], self.config,
+                jax.random.fold_in(self.key, run.index)))
+            for run in self.direct
+        ]
+        if self.central is not None:
+            self.central = self.direct[self.isotropic.index(self.central.index)]
+
+
+def _sequential_result(detector, prepared, params, errors, names, history, converged, message,
+                       settings, truth, started) -> CalibrationResult:
+    """The ``CalibrationResult`` of a sequential calibration: each block's own errors, the
+    correlation NaN off the diagonal (not estimated)."""
     error_params = Params.from_dict({
         name: errors.get(name, np.zeros_like(np.asarray(value, np.float64)))
         for name, value in params.to_dict().items()
@@ -556,16 +505,7 @@ def sequential_calibration(
         converged=converged,
         message=message,
         loss=history[-1]["loss"],
-        settings={
-            "n_rays": config.n_rays,
-            "n_bounces": config.n_bounces,
-            "window_ns": list(config.window),
-            "n_iterations": int(n_iterations),
-            "indirect": indirect,
-            "min_charge_pe": float(min_charge),
-            "scan_step": float(scan_step),
-            "likelihood_evaluations": scanner.evaluations,
-        },
+        settings=settings,
         runs=run_provenance(prepared),
         detector={"name": detector.name, "n_sensors": detector.n_sensors},
         truth=truth,
