@@ -4,6 +4,8 @@ particle detectors (water Cherenkov, liquid scintillator, open media), in JAX.
 Units everywhere: metres, nanoseconds, MeV, radians; wavelength in nm.
 """
 
+from typing import TYPE_CHECKING
+
 from . import _startup as _startup  # first: the command exits 130 on Ctrl-C while JAX loads
 from .xla_settings import configure_xla_flags
 
@@ -36,6 +38,9 @@ configure_from_environment()  # persistent compilation cache (photonflow.compila
 #: to simulate or predict, and importing it costs ~0.05 s of every process's start.
 _LAZY = {"CalibrationResult": "calibration", "calibrate": "calibration",
          "load_params": "calibration"}
+
+if TYPE_CHECKING:  # what static tools (type checkers, the API reference) see of them
+    from .calibration import CalibrationResult, calibrate, load_params
 
 
 def __getattr__(name: str):
