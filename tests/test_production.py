@@ -14,7 +14,7 @@ import photonflow as pf
 from photonflow.cli import app, terminate_as_interrupt
 from photonflow.errors import ConfigError, EventFileError
 from photonflow.io import EventWriter, Truth, make_event
-from photonflow.io.writer import checkpoint_path
+from photonflow.io.partial_files import checkpoint_path
 from photonflow.sources import IsotropicSource
 from photonflow.transport import production
 from photonflow.transport.production import produce_events

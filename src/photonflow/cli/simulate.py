@@ -165,7 +165,7 @@ def interrupted(writer, events: int, interrupts) -> typer.Exit:
     """Report an interrupted ``simulate`` in one line (marking ``interrupts`` reported);
     return the exit to raise (130: ``main`` then leaves at once,
     ``cli_errors.run_console``)."""
-    from ..io.writer import checkpoint_path
+    from ..io.partial_files import checkpoint_path
 
     done = writer.n_run_events
     kept = checkpoint_path(writer.path)

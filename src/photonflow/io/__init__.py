@@ -1,8 +1,10 @@
 """Event files: ``Event``/``Truth`` records and their HDF5 storage.
 
 Modules: ``events`` (the records), ``hdf5`` (the on-disk layout, see
-``docs/file-format.md``), ``writer`` (crash-safe streaming writes), ``reader``
-(lazy reads) and ``summary`` (statistics for ``photonflow info``).
+``docs/file-format.md``), ``writer`` (crash-safe streaming writes, with
+``event_chunks`` adding events in chunks and ``partial_files`` the temporary and
+checkpoint files a resumed run continues), ``reader`` (lazy reads) and ``summary``
+(statistics for ``photonflow info``).
 """
 
 from .events import Event, Truth, make_event

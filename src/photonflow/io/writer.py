@@ -11,13 +11,16 @@ instead, checkpoints it as it goes and keeps it when interrupted, so that the sa
 run can continue from it with ``resume=True`` (docs/file-format.md, "Resuming").
 Ctrl-C and SIGTERM wait while a chunk is written and while the file is closed or
 renamed (``interrupts.interrupts_deferred``), so an interrupt never cuts a write.
+
+The partial files and resuming from them are ``partial_files.py``; checking, buffering
+and writing the events chunk by chunk is ``event_chunks.py`` (``_EventChunks``, the base
+class of ``EventWriter``).
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
-import math
 import os
 import shutil
 from collections.abc import Iterable, Mapping
@@ -32,80 +35,25 @@ from ..geometry.detector import Detector
 from ..interrupts import interrupts_deferred
 from ..params import PARAM_SPECS, Params
 from ..progress import with_progress
-from .events import Event, Truth, hit_arrays_problem, unknown_vector
-from .hdf5 import (
-    HIT_FIELDS,
-    TRUTH_FIELDS,
-    check_layout,
-    create_layout,
-    detector_difference,
-    now_iso,
-    open_checked,
-    params_difference,
+from .event_chunks import _EventChunks, _iterate
+from .events import Event
+from .hdf5 import create_layout, detector_difference, now_iso, open_checked, params_difference
+from .partial_files import (
+    _damaged,
+    _fsync,
+    _open_partial,
+    _reopen_checkpoint,
+    _settings_json,
+    _temporary_path,
+    _text_attr,
+    checkpoint_path,
+    run_difference,
 )
 
 MODES = ("create", "recreate", "append")
 
-#: Truth columns stored for an event without truth (all "unknown").
-_UNKNOWN_TRUTH = ("", "", unknown_vector(), unknown_vector(), math.nan, math.nan, -1)
 
-
-#: Seconds between checkpoints of a resumable write (also one every ``chunk_events``).
-CHECKPOINT_SECONDS = 20.0
-
-
-def checkpoint_path(target: str | os.PathLike) -> Path:
-    """The partial file ``.{name}.partial`` beside ``target`` that a resumable write
-    (``EventWriter(..., run=...)``) fills and keeps when interrupted."""
-    target = Path(target).expanduser()
-    return target.parent / f".{target.name}.partial"
-
-
-def _settings_json(run: Mapping) -> str:
-    """``run`` as canonical JSON (sorted keys); a one-line error if it is not JSON-able."""
-    try:
-        return json.dumps(dict(run), sort_keys=True, allow_nan=True)
-    except (TypeError, ValueError) as error:
-        raise EventFileError(f"run = {run!r}: not JSON-serialisable ({error})") from None
-
-
-def run_difference(stored: str, run: Mapping) -> str | None:
-    """The first setting (in key order) in which the JSON ``stored`` run settings differ
-    from ``run``, as "KEY = stored, not given"; None when they are equal."""
-    old, new = json.loads(stored), json.loads(_settings_json(run))
-    for key in sorted(set(old) | set(new)):
-        if old.get(key) != new.get(key):
-            return f"{key} = {json.dumps(old.get(key))}, not {json.dumps(new.get(key))}"
-    return None
-
-
-def _temporary_path(target: Path) -> Path:
-    """Create (exclusively, honouring the umask) an empty temporary file beside ``target``."""
-    base = target.parent / f".{target.name}.partial-{os.getpid()}"
-    for attempt in range(1000):
-        candidate = base if attempt == 0 else base.with_name(f"{base.name}-{attempt}")
-        try:
-            fd = os.open(candidate, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
-        except FileExistsError:
-            continue
-        except OSError as error:
-            raise EventFileError(
-                f"{target}: cannot create a temporary file in {target.parent}"
-                f" ({error.strerror or error})"
-            ) from None
-        os.close(fd)
-        return candidate
-    raise EventFileError(
-        f"{target}: cannot create a temporary file (too many stale .partial files)"
-    )
-
-
-def _fsync(path: Path) -> None:
-    with open(path, "rb+") as handle:
-        os.fsync(handle.fileno())
-
-
-class EventWriter:
+class EventWriter(_EventChunks):
     """Context manager that streams events into an event file, chunk by chunk.
 
     Example::
@@ -365,171 +313,6 @@ class EventWriter:
             with contextlib.suppress(FileNotFoundError):
                 self._tmp.unlink()
             self._tmp = None
-
-    # ---- adding events ---------------------------------------------------------
-    def append(self, event: Event) -> None:
-        """Add one event (buffered; written every ``chunk_events`` events).
-
-        Raises:
-            EventFileError: not an ``Event``, hit arrays of unequal length, a bad truth.
-        """
-        if self._h5 is None:
-            raise EventFileError(f"{self.path}: EventWriter is not open; use it in a with block")
-        index = self.n_events
-        if not isinstance(event, Event):
-            raise EventFileError(
-                f"{self.path}: events[{index}] is a {type(event).__name__}, expected an Event"
-            )
-        ids, charge, time = (np.asarray(a) for a in (event.sensor_ids, event.charge, event.time))
-        problem = None
-        if not (ids.ndim == 1 and charge.shape == ids.shape and time.shape == ids.shape):
-            problem = hit_arrays_problem(ids, charge, time)
-        elif ids.dtype.kind not in "iu" and ids.size:
-            problem = f"sensor_ids has dtype {ids.dtype}, expected integers"
-        truth = event.truth
-        if truth is None:
-            record = _UNKNOWN_TRUTH
-        elif not isinstance(truth, Truth):
-            problem = problem or f"truth is a {type(truth).__name__}, expected a Truth or None"
-        else:
-            position = np.asarray(truth.position, dtype=np.float64)
-            direction = np.asarray(truth.direction, dtype=np.float64)
-            if position.shape != (3,) or direction.shape != (3,):
-                problem = problem or "truth.position and truth.direction must have shape (3,)"
-            record = (
-                str(truth.source_kind), str(truth.particle), position, direction,
-                float(truth.energy), float(truth.time), int(truth.seed),
-            )
-        if problem is not None:
-            raise EventFileError(f"{self.path}: events[{index}]: {problem}")
-        self._buffer.append((ids, charge, time, *record))
-        due = self.run is not None and (
-            monotonic() - self._checkpointed >= CHECKPOINT_SECONDS
-        )
-        if len(self._buffer) >= self.chunk_events or due:
-            self._flush()
-
-    def extend(self, events: Iterable[Event]) -> None:
-        """Add every event of an iterable (a list, a generator...) with bounded memory."""
-        for event in _iterate(events, self.path):
-            self.append(event)
-
-    @interrupts_deferred()  # a chunk is written whole: an interrupt waits for its end
-    def _flush(self) -> None:
-        """Write the buffered events to the temporary file."""
-        if not self._buffer:
-            return
-        buffer, self._buffer = self._buffer, []
-        columns = list(zip(*buffer, strict=True))
-        counts = np.fromiter((len(ids) for ids in columns[0]), dtype=np.int64, count=len(buffer))
-        ids = np.concatenate([np.asarray(a, dtype=np.int64).ravel() for a in columns[0]])
-        bad = np.flatnonzero((ids < 0) | (ids >= self.detector.n_sensors))
-        if bad.size:
-            event = int(np.searchsorted(np.cumsum(counts), bad[0], side="right"))
-            raise EventFileError(
-                f"{self.path}: events[{self._n_events + event}]: sensor id {int(ids[bad[0]])}"
-                f" out of range 0..{self.detector.n_sensors - 1}"
-            )
-        hits = {
-            "sensor_id": ids.astype(np.int32),
-            "charge": np.concatenate([np.asarray(a, np.float32) for a in columns[1]]),
-            "time": np.concatenate([np.asarray(a, np.float32) for a in columns[2]]),
-        }
-        truth = {
-            "source_kind": np.array(columns[3], dtype=object),
-            "particle": np.array(columns[4], dtype=object),
-            "position": np.stack(columns[5]),
-            "direction": np.stack(columns[6]),
-            "energy": np.array(columns[7], dtype=np.float64),
-            "time": np.array(columns[8], dtype=np.float64),
-            "seed": np.array(columns[9], dtype=np.int64),
-        }
-        events = self._h5["events"]
-        n0, n1 = self._n_events, self._n_events + len(buffer)
-        h0, h1 = self._n_hits, self._n_hits + int(counts.sum())
-        for name in HIT_FIELDS:
-            dataset = events["hits"][name]
-            dataset.resize((h1,))
-            dataset[h0:h1] = hits[name]
-        for name in TRUTH_FIELDS:
-            dataset = events["truth"][name]
-            dataset.resize((n1, *dataset.shape[1:]))
-            dataset[n0:n1] = truth[name]
-        offsets = events["offsets"]
-        offsets.resize((n1 + 1,))
-        offsets[n0 + 1 : n1 + 1] = h0 + np.cumsum(counts)
-        events.attrs["n_events"] = np.int64(n1)
-        self._n_events, self._n_hits = n1, h1
-        if self.run is not None:
-            self._h5.flush()
-            self._checkpointed = monotonic()
-
-
-def _text_attr(h5: h5py.File, name: str) -> str:
-    """A root string attribute ("{}" when absent), decoded from bytes if need be."""
-    value = h5.attrs.get(name, "{}")
-    return value.decode() if isinstance(value, bytes) else str(value)
-
-
-def _damaged(partial: Path, target: Path, reason) -> EventFileError:
-    """The one-line error for a partial file that cannot be resumed."""
-    return EventFileError(
-        f"{target}: cannot resume, {partial.name} is damaged ({reason}); delete it and run"
-        " again without resuming"
-    )
-
-
-def _open_partial(partial: Path, target: Path, mode: str) -> h5py.File:
-    """``h5py.File(partial, mode)`` with a one-line error naming the damage."""
-    try:
-        return h5py.File(partial, mode)
-    except OSError as error:
-        raise _damaged(partial, target, error) from None
-
-
-def _reopen_checkpoint(partial: Path, target: Path) -> h5py.File:
-    """Open an interrupted run's partial file read/write, cut every ``/events`` dataset
-    back to the last checkpoint (``/events`` attribute ``n_events``) and check it.
-
-    Raises:
-        EventFileError: the file is not a readable partial event file (one line).
-    """
-    h5 = _open_partial(partial, target, "r+")
-    try:
-        events = h5["events"]
-        n_events = int(events.attrs["n_events"])
-        offsets = events["offsets"]
-        if offsets.shape[0] < n_events + 1:
-            raise _damaged(partial, target, f"{offsets.shape[0]} offsets < n_events + 1")
-        n_hits = int(offsets[n_events])
-        datasets = [(offsets, n_events + 1)]
-        datasets += [(events["truth"][name], n_events) for name in TRUTH_FIELDS]
-        datasets += [(events["hits"][name], n_hits) for name in HIT_FIELDS]
-        for dataset, length in datasets:
-            if dataset.shape[0] < length:
-                raise _damaged(partial, target, f"{dataset.name} is too short")
-            dataset.resize((length, *dataset.shape[1:]))
-        check_layout(h5, partial)
-    except EventFileError:
-        h5.close()
-        raise
-    except Exception as error:
-        h5.close()
-        raise _damaged(partial, target, error) from None
-    h5.attrs["modified"] = now_iso()
-    return h5
-
-
-def _iterate(events, path: Path):
-    """``iter(events)``, with a one-line error for a single Event or a non-iterable."""
-    if isinstance(events, Event):
-        raise EventFileError(f"{path}: expected an iterable of events, got one Event")
-    try:
-        return iter(events)
-    except TypeError:
-        raise EventFileError(
-            f"{path}: events is a {type(events).__name__}, expected an iterable of Event"
-        ) from None
 
 
 def write_events(
