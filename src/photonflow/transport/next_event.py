@@ -120,6 +120,18 @@ def components(vectors):
     return tuple(vectors[..., k, None] for k in range(3))
 
 
+def vertex_pair_light(params, config, vertex, d_in, wall_n, kind, positions, normals):
+    """``pair_light`` of R vertices (``vertex``, incoming direction ``d_in`` and surface
+    normal ``wall_n`` (R, 3), ``kind`` (R,)) with sensors at ``positions`` (m) and
+    ``normals`` (..., 3) that broadcast against (R, 1, 3): (1, N, 3) for every sensor,
+    (R, K, 3) for candidates per vertex. Returns (distance m, cos_in, factor)."""
+    return pair_light(
+        params, config, components(vertex), components(d_in), components(wall_n),
+        kind[:, None], tuple(positions[..., k] for k in range(3)),
+        tuple(normals[..., k] for k in range(3)),
+    )
+
+
 def next_event_sums(
     params, sensors: Sensors, config, reference, vertex, weight, time, kind, d_in, wall_n,
     own_disc,
@@ -128,15 +140,9 @@ def next_event_sums(
     c in p.e. of a sensor of efficiency 1.
 
     ``own_disc`` (R,) is the sensor each vertex leaves out (N for none)."""
-    distance, cos_in, factor = pair_light(
-        params,
-        config,
-        components(vertex),
-        components(d_in),
-        components(wall_n),
-        kind[:, None],
-        tuple(sensors.positions[None, :, k] for k in range(3)),
-        tuple(sensors.normals[None, :, k] for k in range(3)),
+    distance, cos_in, factor = vertex_pair_light(
+        params, config, vertex, d_in, wall_n, kind, sensors.positions[None],
+        sensors.normals[None],
     )
     n = sensors.positions.shape[0]
     solid_angle = far_solid_angle(distance, cos_in, sensors.radius)
@@ -165,15 +171,8 @@ def near_correction_sums(
     positions = sensors.positions[index]
     normals = sensors.normals[index]
     radius = sensors.radius[index]
-    distance, cos_in, factor = pair_light(
-        params,
-        config,
-        components(vertex),
-        components(d_in),
-        components(wall_n),
-        kind[:, None],
-        tuple(positions[..., k] for k in range(3)),
-        tuple(normals[..., k] for k in range(3)),
+    distance, cos_in, factor = vertex_pair_light(
+        params, config, vertex, d_in, wall_n, kind, positions, normals
     )
     # Pairs that cannot see each other (discs facing away, the disc a glass vertex lies
     # on) are evaluated at a harmless point and dropped, keeping gradients finite.

@@ -83,17 +83,24 @@ def shifted_lattice(key, n: int, dtype):
     return jnp.mod(jnp.asarray(lattice, dtype) + shift, 1.0)
 
 
+def leaving_source(source, key, count: int, dtype) -> dict:
+    """``count`` rays leaving the source with N / count photons each: their origins
+    (count, 3) m, unit directions (count, 3) from a shifted Fibonacci lattice (``key``)
+    through the source's inverse CDF, expected photons (count,) and times (count,) ns,
+    as the fields of a ``Rays`` or ``Probes``."""
+    u_emit = shifted_lattice(key, count, dtype)
+    return {
+        "origins": jnp.broadcast_to(source.position, (count, 3)),
+        "directions": sample_directions(source, u_emit[0], u_emit[1]),
+        "weight": jnp.broadcast_to(source.n_photons / count, (count,)).astype(dtype),
+        "time": jnp.broadcast_to(source.time, (count,)).astype(dtype),
+    }
+
+
 def emitted_rays(source, key, n_rays: int, n_sensors: int, dtype) -> Rays:
-    """``n_rays`` rays leaving the source with N / n_rays photons each, directions from a
-    shifted Fibonacci lattice through the source's inverse CDF."""
-    u_emit = shifted_lattice(key, n_rays, dtype)
-    return Rays(
-        origins=jnp.broadcast_to(source.position, (n_rays, 3)),
-        directions=sample_directions(source, u_emit[0], u_emit[1]),
-        weight=jnp.broadcast_to(source.n_photons / n_rays, (n_rays,)).astype(dtype),
-        time=jnp.broadcast_to(source.time, (n_rays,)).astype(dtype),
-        on_disc=jnp.full(n_rays, n_sensors, dtype=jnp.int32),
-    )
+    """``n_rays`` rays leaving the source (``leaving_source``), on no disc."""
+    return Rays(**leaving_source(source, key, n_rays, dtype),
+                on_disc=jnp.full(n_rays, n_sensors, dtype=jnp.int32))
 
 
 def trace(shape: Shape, sensors: Sensors, origins, directions):

@@ -22,23 +22,16 @@ import jax.numpy as jnp
 from ..geometry.sensor_arrays import Sensors
 from ..numerics import where
 from ..response.detection import acceptance_at_cos
-from .emission import sample_directions
 from .mirror import FOCUSING_LIMIT, focusing_ratio
 from .optics import interaction_rates, specular_direction, travel_time
-from .rays import Probes, shifted_lattice, trace
+from .rays import Probes, leaving_source, trace
 
 
 def source_probes(source, key, count: int, dtype) -> Probes:
     """``count`` probes leaving the source in emission directions of their own (a
     shifted lattice from ``key``), N / count photons each, order 0."""
-    emission = shifted_lattice(key, count, dtype)
-    return Probes(
-        origins=jnp.broadcast_to(source.position, (count, 3)),
-        directions=sample_directions(source, emission[0], emission[1]),
-        weight=jnp.broadcast_to(source.n_photons / count, (count,)).astype(dtype),
-        time=jnp.broadcast_to(source.time, (count,)).astype(dtype),
-        order=jnp.zeros(count, jnp.int32),
-    )
+    return Probes(**leaving_source(source, key, count, dtype),
+                  order=jnp.zeros(count, jnp.int32))
 
 
 def specular_probes(params, shape, sensors: Sensors, reference, probes: Probes, n_orders: int):
