@@ -25,7 +25,7 @@ from .errors import (
 from .generator import Photons, Track, generate
 from .geometry import Box, Cylinder, Detector, OpenMedium, Sphere, make_detector
 from .geometry.presets import preset_table
-from .io import Event, EventFile, Truth, read_events, write_events
+from .io import Event, Truth
 from .likelihood import nll, sensor_nll
 from .params import Params, default_params
 from .prediction import Prediction
@@ -34,13 +34,16 @@ from .transport import TransportConfig, expected, expected_function, sample, sam
 
 configure_from_environment()  # persistent compilation cache (photonflow.compilation_cache)
 
-#: Names imported when first used: the calibration (and what it imports) is not needed
-#: to simulate or predict, and importing it costs ~0.05 s of every process's start.
+#: Names imported when first used: the calibration (and what it imports) and the event
+#: files (h5py) are not needed to simulate or predict, and importing them costs ~0.1 s
+#: of every process's start.
 _LAZY = {"CalibrationResult": "calibration", "calibrate": "calibration",
-         "load_params": "calibration"}
+         "load_params": "calibration", "EventFile": "io", "read_events": "io",
+         "write_events": "io"}
 
 if TYPE_CHECKING:  # what static tools (type checkers, the API reference) see of them
     from .calibration import CalibrationResult, calibrate, load_params
+    from .io import EventFile, read_events, write_events
 
 
 def __getattr__(name: str):

@@ -7,11 +7,21 @@ checkpoint files a resumed run continues), ``reader`` (lazy reads) and ``summary
 (statistics for ``photonflow info``).
 """
 
+from typing import TYPE_CHECKING
+
 from .events import Event, Truth, make_event
-from .hdf5 import FORMAT, FORMAT_VERSION
-from .reader import EventFile, read_events
-from .summary import format_summary, summarize_events
-from .writer import EventWriter, write_events
+
+#: Names imported when first used, by module: they need h5py, which events in memory
+#: (``Event``, ``Truth``) do not.
+_LAZY = {"FORMAT": "hdf5", "FORMAT_VERSION": "hdf5", "EventFile": "reader",
+         "read_events": "reader", "format_summary": "summary",
+         "summarize_events": "summary", "EventWriter": "writer", "write_events": "writer"}
+
+if TYPE_CHECKING:  # what static tools (type checkers, the API reference) see of them
+    from .hdf5 import FORMAT, FORMAT_VERSION
+    from .reader import EventFile, read_events
+    from .summary import format_summary, summarize_events
+    from .writer import EventWriter, write_events
 
 __all__ = [
     "FORMAT",
@@ -26,3 +36,18 @@ __all__ = [
     "summarize_events",
     "write_events",
 ]
+
+
+def __getattr__(name: str):
+    """Import the names of ``_LAZY`` on first use (PEP 562)."""
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

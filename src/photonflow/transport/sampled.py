@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ConfigError, format_value
+from ..exported import call_exported
 from ..geometry.detector import Detector
 from ..geometry.sensor_arrays import Sensors, sensor_grid_for, sensors_for
 from ..geometry.sensor_grid import SensorGrid
@@ -273,17 +274,21 @@ def sample_photons(
     source_c = jax.tree.map(functools.partial(strict_array, dtype=dtype), source)
     batch = batch_size_for(n_photons, config)
 
+    program = functools.partial(
+        _transport_source_batch, shape=detector.shape, config=config, batch=batch
+    )
+
     def launch(index):
-        return _transport_source_batch(
+        return call_exported(
+            "transport_source_batch",
+            program,
+            (detector.shape, config, batch),
             key,
             jax.device_put(np.uint32(index)),
             jax.device_put(np.int32(min(batch, n_photons - index * batch))),
             sensors,
             params_c,
             source_c,
-            shape=detector.shape,
-            config=config,
-            batch=batch,
         )
 
     n_batches = -(-n_photons // batch)
@@ -368,9 +373,16 @@ def sample_photon_bundle(
     n_photons = int(time.shape[0])
     batch = batch_size_for(n_photons, config)
 
+    program = functools.partial(
+        _transport_bundle_batch, shape=detector.shape, config=config, batch=batch
+    )
+
     def launch(index):
         start = index * batch
-        return _transport_bundle_batch(
+        return call_exported(
+            "transport_bundle_batch",
+            program,
+            (detector.shape, config, batch),
             key,
             jnp.uint32(index),
             jnp.int32(min(batch, n_photons - start)),
@@ -379,9 +391,6 @@ def sample_photon_bundle(
             _padded(position, start, batch, 0.0, dtype),
             _padded(direction, start, batch, (0.0, 0.0, 1.0), dtype),
             _padded(time, start, batch, 0.0, dtype),
-            shape=detector.shape,
-            config=config,
-            batch=batch,
         )
 
     n_batches = -(-n_photons // batch)
