@@ -91,7 +91,9 @@ class PointSource(Protocol):
     """What the transport needs of a point source (the module docstring): its fields
     ``position`` (3,) m, ``n_photons``, ``time`` ns and ``pulse_width`` ns, and the four
     methods below. ``IsotropicSource``, ``LaserSource`` and ``DiffuserSource`` are
-    point sources; another class with these members works in both modes."""
+    point sources. The transport of both modes needs nothing else; ``check_source``
+    and the event files' truth read the fields of a dataclass, so a new source is best
+    a ``pytree_dataclass`` too (tests/test_source_interface.py has one)."""
 
     position: jax.Array
     n_photons: jax.Array

@@ -61,7 +61,7 @@ def sensors_for(
     detector object, dtype and ``near`` (when ``grid`` is None), eagerly even inside a
     traced function."""
     dtype = default_float_dtype() if dtype is None else np.dtype(dtype)
-    if grid is not None:
+    if grid is not None and grid is not _GRIDS.get(detector):  # a grid of the caller's own
         return _build(detector, dtype, grid, near)
     cached = _SENSORS.setdefault(detector, {})
     if (dtype, near) not in cached:

@@ -28,12 +28,11 @@ g(R) - g(R0) is written with R0^2 - R^2 = 2 r q . e(t), free of cancellation:
 
 The emission-weighted solid angle of a source with an axially symmetric density S(theta)
 (the sources' ``disc_fraction``, ``photonflow.sources``) is likewise a rim integral: by
-Stokes' theorem on the
-unit sphere, integral_R S dOmega = rim integral of G(theta) dphi, G(theta) = integral_0^theta
-S sin, (theta, phi) polar angles about the source axis. The diffuser needs the cosine
-moment (``disc_cosine_moment``), the laser the solid angle of the disc's image inside its
-cone (``disc_cone_solid_angle``), each in a form free of the poles of dphi and of float32
-cancellation.
+Stokes' theorem on the unit sphere, integral_R S dOmega = rim integral of G(theta) dphi,
+G(theta) = integral_0^theta S sin, (theta, phi) polar angles about the source axis. The
+diffuser needs the cosine moment (``disc_cosine_moment``), the laser the solid angle of
+the disc's image inside its cone (``disc_cone_solid_angle``), each in a form free of the
+poles of dphi and of float32 cancellation.
 """
 
 from __future__ import annotations

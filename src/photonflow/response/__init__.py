@@ -12,26 +12,12 @@ light arriving at each sensor:
   (transit-time spread, time offset, dark noise, single-p.e. charges, readout window,
   threshold);
 - ``spe``: the single-photoelectron charge model shared by ``hits`` and the likelihood.
-
-``hits`` is imported on first use of its names: it reads the readout settings of
-``photonflow.transport``, which itself imports this package.
 """
 
 from .detection import acceptance_at_cos, detection_probability, sensor_fate
 from .expected import SensorLight, expected_response
+from .hits import photoelectrons_to_event, single_pe_charges
 from .spe import single_pe_moments
-
-#: Names of ``hits``, imported on first use (module docstring).
-_HITS_NAMES = ("photoelectrons_to_event", "single_pe_charges")
-
-
-def __getattr__(name: str):
-    if name in _HITS_NAMES:
-        from . import hits
-
-        return getattr(hits, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
 
 __all__ = [
     "SensorLight",

@@ -28,9 +28,9 @@ from scipy.special import ndtr, ndtri
 from ..errors import ConfigError, format_value
 from ..io.events import Event, Truth, make_event
 from ..params import Params
-from ..transport.optics import DEFAULT_CONFIG, TransportConfig
 
 if TYPE_CHECKING:
+    from ..transport.optics import TransportConfig
     from ..transport.sampled import PhotonTally
 
 
@@ -86,7 +86,7 @@ def photoelectrons_to_event(
     params: Params,
     key_or_seed,
     *,
-    config: TransportConfig = DEFAULT_CONFIG,
+    config: TransportConfig | None = None,
     truth: Truth | None = None,
 ) -> Event:
     """Turn the detected photons of a ``PhotonTally`` into an ``Event`` of sensor hits.
@@ -98,7 +98,7 @@ def photoelectrons_to_event(
         key_or_seed: JAX key, integer seed or numpy Generator for the response's
             randomness.
         config: readout ``window`` (ns, relative to ``tally.source_time``) and
-            ``charge_threshold`` (p.e.).
+            ``charge_threshold`` (p.e.); default ``transport.optics.DEFAULT_CONFIG``.
         truth: attached to the event as is.
 
     Returns:
@@ -107,6 +107,8 @@ def photoelectrons_to_event(
     """
     rng = as_generator(key_or_seed)
     n_sensors = tally.n_sensors
+    if config is None:  # imported here: transport imports this module
+        from ..transport.optics import DEFAULT_CONFIG as config
     window = (tally.source_time + config.window[0], tally.source_time + config.window[1])
     offsets = np.asarray(params.time_offset, dtype=np.float64)
     sensors = np.asarray(tally.photon_sensor, dtype=np.int32)

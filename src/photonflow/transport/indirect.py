@@ -42,16 +42,16 @@ cannot see; a ray that happened to be mirrored into a sensor would carry its who
 weight there (on SK at 1,024 rays and 2e5 photons, single sensors got 8-40 p.e. of such
 spikes, heavy-tailed noise that drove fits of the wall reflectivity to zero). So light
 whose last vertex is a specular wall reflection is found by *specular probes*
-(``specular_probes.specular_probes``): from every vertex of order k < n_bounces, ``specular_probes``
-rays leave in directions drawn from the same proposals as the continuation (off the
-glass: from a point uniform on the disc, as the NEE's dome density assumes), each with
-1 / specular_probes of the weight; one that reaches the wall survives with
-exp(-rate_total t) R_w f_s, is mirrored, and counts on the sensor its mirrored segment
-ends on (attributed to order k + 1). From the source (k = 0) the probes are emission
-directions of their own and count only paths focused below ``FOCUSING_LIMIT`` (the rest
-is ``mirror_light``). No branch choice is made along a probe, so each carries far less
-weight than a continuing ray would; the variance of the mirrored light falls 5-7x on SK
-at 8 probes.
+(``specular_probes.specular_probes``): from every vertex of order k < n_bounces,
+``config.specular_probes`` rays leave in directions drawn from the same proposals as the
+continuation (off the glass: from a point uniform on the disc, as the NEE's dome density
+assumes), each with 1 / ``config.specular_probes`` of the weight; one that reaches the
+wall survives with exp(-rate_total t) R_w f_s, is mirrored, and counts on the sensor its
+mirrored segment ends on (attributed to order k + 1). From the source (k = 0) the probes
+are emission directions of their own and count only paths focused below
+``FOCUSING_LIMIT`` (the rest is ``mirror_light``). No branch choice is made along a
+probe, so each carries far less weight than a continuing ray would; the variance of the
+mirrored light falls 5-7x on SK at 8 probes.
 
 After the last vertex its outgoing segment is traced once more: the expected photons
 that would undergo a further vertex (scatter or reflection) on it are the

@@ -10,8 +10,9 @@ One description of the physics, used by both modes so that they agree by constru
 - sensor: a photon crossing a sensor's disc from the front is reflected by its glass
   with probability ``sensor_reflectivity``; otherwise it is detected or absorbed, as
   the sensor response decides (``photonflow.response.detection``: detected with
-  probability QE x efficiency_j x acceptance(incidence) per arriving photon, the factor
-  direct light by quadrature uses too). The reflection is specular off
+  probability QE x efficiency_j x acceptance(incidence) per arriving photon; the
+  expected mode weighs arriving light by QE x acceptance path by path and its response
+  applies efficiency_j). The reflection is specular off
   the hemispherical glass dome above the disc: a photon crossing the disc at offset q
   from its centre is mirrored about the dome's normal there, (q + sqrt(r^2 - |q|^2) n)
   / r. A convex dome spreads the reflected light over a wide range of directions

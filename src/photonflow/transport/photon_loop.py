@@ -15,7 +15,8 @@ The physics is the one of ``optics.py``, step by step for a batch of photons at 
      or Mie by their rate ratio) into a new direction (``deflect``, uniform azimuth);
    - sensor j: the sensor response decides (``response.detection.sensor_fate``, the
      one definition of detection): detected with probability QE x efficiency_j x
-     acceptance(incidence) (exactly the factor of direct light by quadrature),
+     acceptance(incidence) (direct light by quadrature applies the same QE x
+     acceptance, and the expected mode's response the same efficiency),
      reflected specularly off the glass with probability ``sensor_reflectivity``,
      absorbed otherwise (u < p_det: detected; p_det <= u < p_det + R: reflected).
      Detection and reflection are exclusive outcomes of one uniform, so the loop asks
