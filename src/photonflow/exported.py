@@ -26,12 +26,14 @@ from pathlib import Path
 
 import jax
 import jaxlib
+import numpy as np
+from jax import export as jax_export
 
 #: Subdirectory of the compilation-cache directory that holds the artifacts.
 SUBDIRECTORY = "photonflow-exported"
 
 #: Artifacts loaded or made by this process, by key.
-_LOADED: dict[str, jax.export.Exported] = {}
+_LOADED: dict[str, jax_export.Exported] = {}
 _SOURCE_HASH: list[str] = []
 
 
@@ -70,8 +72,9 @@ def call_exported(name: str, function, static, *args):
 
 def _key(name: str, static, treedef, leaves) -> str:
     """The artifact's key: a hash of everything the traced program depends on."""
-    avals = [(tuple(leaf.shape), str(leaf.dtype), bool(getattr(leaf, "weak_type", False)))
-             for leaf in (jax.typeof(leaf) for leaf in leaves)]
+    avals = [(np.shape(leaf), str(leaf.dtype if hasattr(leaf, "dtype") else type(leaf)),
+              bool(getattr(getattr(leaf, "aval", None), "weak_type", False)))
+             for leaf in leaves]
     parts = (name, repr(static), str(treedef), avals, jax.__version__, jaxlib.__version__,
              jax.default_backend(), bool(jax.config.jax_enable_x64), _source_hash())
     return hashlib.sha256(repr(parts).encode()).hexdigest()
@@ -89,16 +92,16 @@ def _source_hash() -> str:
     return _SOURCE_HASH[0]
 
 
-def _load_or_export(path: Path, function, treedef, leaves) -> jax.export.Exported | None:
+def _load_or_export(path: Path, function, treedef, leaves) -> jax_export.Exported | None:
     """The artifact at ``path``, or a new one exported from ``function`` and written there
     (atomically: a partial file is never read); None when neither works."""
     try:
-        return jax.export.deserialize(bytearray(path.read_bytes()))
+        return jax_export.deserialize(bytearray(path.read_bytes()))
     except Exception:  # noqa: BLE001 (absent, unreadable or incompatible: export anew)
         pass
     try:
         flat = jax.jit(lambda *flat: function(*jax.tree.unflatten(treedef, flat)))
-        exported = jax.export.export(flat)(*leaves)
+        exported = jax_export.export(flat)(*leaves)
     except Exception:  # noqa: BLE001 (a cache only: the plain call runs instead)
         return None
     partial = path.with_name(f"{path.name}.{os.getpid()}.tmp")
