@@ -26,6 +26,7 @@ from .generator import Photons, Track, generate
 from .geometry import Box, Cylinder, Detector, OpenMedium, Sphere, make_detector
 from .geometry.presets import preset_table
 from .io import Event, Truth
+from .lazy_names import lazy_names
 from .likelihood import nll, sensor_nll
 from .params import Params, default_params
 from .prediction import Prediction
@@ -46,19 +47,7 @@ if TYPE_CHECKING:  # what static tools (type checkers, the API reference) see of
     from .io import EventFile, read_events, write_events
 
 
-def __getattr__(name: str):
-    """Import the names of ``_LAZY`` on first use (PEP 562)."""
-    if name in _LAZY:
-        import importlib
-
-        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_names(__name__, _LAZY)
 
 
 def presets() -> dict[str, dict[str, object]]:

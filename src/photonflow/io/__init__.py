@@ -9,6 +9,7 @@ checkpoint files a resumed run continues), ``reader`` (lazy reads) and ``summary
 
 from typing import TYPE_CHECKING
 
+from ..lazy_names import lazy_names
 from .events import Event, Truth, make_event
 
 #: Names imported when first used, by module: they need h5py, which events in memory
@@ -38,16 +39,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
-    """Import the names of ``_LAZY`` on first use (PEP 562)."""
-    if name in _LAZY:
-        import importlib
-
-        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_names(__name__, _LAZY)
