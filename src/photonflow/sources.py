@@ -80,12 +80,6 @@ def linear_anisotropy_cos(u, anisotropy):
     return clip(2.0 * (2.0 * u - 1.0 + half) / (1.0 + jnp.sqrt(discriminant)), -1.0, 1.0)
 
 
-def _axis(vector, dtype):
-    """The unit vector along ``vector`` in ``dtype``."""
-    axis = jnp.asarray(vector, dtype=dtype)
-    return axis / jnp.linalg.norm(axis)
-
-
 @runtime_checkable
 class PointSource(Protocol):
     """What the transport needs of a point source (the module docstring): its fields
@@ -181,7 +175,7 @@ class LaserSource:
 
     def axis(self, dtype=None):
         """(3,) unit cone axis (``direction`` normalised)."""
-        return _axis(self.direction, dtype)
+        return _unit(jnp.asarray(self.direction, dtype))
 
     def sample_cos(self, u):
         """cos(theta) uniform in solid angle inside the cone, from uniforms u in [0, 1)."""
@@ -233,7 +227,7 @@ class DiffuserSource:
 
     def axis(self, dtype=None):
         """(3,) unit axis of the anisotropy (``direction`` normalised)."""
-        return _axis(self.direction, dtype)
+        return _unit(jnp.asarray(self.direction, dtype))
 
     def sample_cos(self, u):
         """cos(theta) with density (1 + a cos theta) / 2 in cos theta, from uniforms u."""
