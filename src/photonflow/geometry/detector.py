@@ -143,6 +143,22 @@ def make_detector(
         raise ConfigError(
             f"{source}.type[{i}] = {int(types[i])}: must be in 0..{len(sensor_models) - 1}"
         )
+    _check_placement(shape, positions, normals, source)
+    return Detector(
+        sensor_positions=_frozen(positions),
+        sensor_normals=_frozen(normals),
+        sensor_radius=_frozen(radius),
+        sensor_type=_frozen(types),
+        shape=shape,
+        name=name,
+        sensor_models=tuple(sensor_models),
+    )
+
+
+def _check_placement(shape: Shape, positions: np.ndarray, normals: np.ndarray,
+                     source: str) -> None:
+    """Raise ``ConfigError`` for a sensor outside ``shape`` or a wall-mounted sensor whose
+    normal points out of the volume (positions m, normals unit)."""
     distance = np.asarray(shape.distance_to_wall(positions), dtype=np.float64)
     bad = np.flatnonzero(distance < -BOUNDARY_TOLERANCE)
     if bad.size:
@@ -164,12 +180,3 @@ def make_detector(
                 f"{source}.normals[{i}] = {format_value(np.round(normals[i], 4).tolist())}:"
                 " points out of the detector (normals must point inward)"
             )
-    return Detector(
-        sensor_positions=_frozen(positions),
-        sensor_normals=_frozen(normals),
-        sensor_radius=_frozen(radius),
-        sensor_type=_frozen(types),
-        shape=shape,
-        name=name,
-        sensor_models=tuple(sensor_models),
-    )

@@ -87,6 +87,30 @@ def plot_calibration_report(
     for ax in axes[:n_curves]:  # iteration axes
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
 
+    _draw_convergence(axes, result, labels, history)
+
+    if truth is not None and labels:
+        ax = axes[n_curves]
+        ax.set_visible(True)
+        _draw_pulls(ax, result, labels)
+
+    for row, name in enumerate(sensor_fields, start=1):
+        _draw_sensor_field(parts[row], result, name, detector)
+
+    status = "converged" if result.converged else "not converged"
+    figure.suptitle(
+        f"calibration of {result.detector.get('name', '?')}: {', '.join(result.free)}"
+        f" ({result.method}, {result.likelihood}; {status}, -log L = {result.loss:.2f})"
+    )
+    if path is not None:
+        save_figure(figure, path)
+    return figure
+
+
+def _draw_convergence(axes, result, labels: list[str], history: list[dict]) -> None:
+    """-log L (minus its minimum) against iteration on ``axes[0]``, and each dense free
+    value (physical units) with its final 1-sigma band and the truth on ``axes[1:]``."""
+    truth = result.truth
     iterations = np.array([step["iteration"] for step in history], dtype=np.float64)
     losses = np.array([step["loss"] for step in history], dtype=np.float64)
     ax = axes[0]
@@ -119,23 +143,6 @@ def plot_calibration_report(
         ax.set_title(label, fontsize=10)
         if number == 1:
             ax.legend(fontsize=8)
-
-    if truth is not None and labels:
-        ax = axes[n_curves]
-        ax.set_visible(True)
-        _draw_pulls(ax, result, labels)
-
-    for row, name in enumerate(sensor_fields, start=1):
-        _draw_sensor_field(parts[row], result, name, detector)
-
-    status = "converged" if result.converged else "not converged"
-    figure.suptitle(
-        f"calibration of {result.detector.get('name', '?')}: {', '.join(result.free)}"
-        f" ({result.method}, {result.likelihood}; {status}, -log L = {result.loss:.2f})"
-    )
-    if path is not None:
-        save_figure(figure, path)
-    return figure
 
 
 def _mark_stage(ax, history: list, label: str | None = None) -> None:
