@@ -45,7 +45,7 @@ def test_track_validation_names_field_and_value(changes, field):
 
 def test_track_normalises_direction_within_tolerance():
     track = Track("e-", [1, 2, 3], (0.0, 0.6, 0.8000001), 10)
-    assert track.position == (1.0, 2.0, 3.0)
+    np.testing.assert_array_equal(track.position, [1.0, 2.0, 3.0])
     assert np.linalg.norm(track.direction) == pytest.approx(1.0, abs=1e-15)
 
 

@@ -156,7 +156,8 @@ def test_random_tracks_lie_in_the_fiducial_volume_and_are_per_event():
     assert random_tracks(detector, "e-", (100.0, 500.0), 4, 5)[3] == tracks[3]
     fixed = random_tracks(detector, "mu-", 300.0, 4, 2, vertex=(1.0, 2.0, 3.0),
                           direction=(0.0, 0.0, -1.0))
-    assert fixed[0].position == (1.0, 2.0, 3.0) and fixed[1].direction == (0.0, 0.0, -1.0)
+    np.testing.assert_array_equal(fixed[0].position, [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(fixed[1].direction, [0.0, 0.0, -1.0])
     with pytest.raises(ConfigError, match="fiducial margin"):
         random_tracks(detector, "e-", 100.0, 4, 1, fiducial_margin=17.0)
 

@@ -10,7 +10,7 @@ from .generate import Photons, Process, generate
 from .materials import LAB, WATER, Material, refractive_index, water_based_scintillator
 from .records import Deposits, EnergyBudget, Steps, Tracks
 from .settings import GeneratorSettings
-from .track import Track
+from .track import Track, stack_tracks
 
 __all__ = [
     "LAB",
@@ -26,5 +26,6 @@ __all__ = [
     "Tracks",
     "generate",
     "refractive_index",
+    "stack_tracks",
     "water_based_scintillator",
 ]
