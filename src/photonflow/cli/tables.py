@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from ..cli_errors import check_output_file
@@ -28,6 +29,14 @@ def tables_build(
     yield_scale: Annotated[
         float, typer.Option(help="Photon yield scale while building (counts are rescaled).")
     ] = 1.0,
+    target_error: Annotated[
+        float | None,
+        typer.Option(help="Add batches of --per-energy particles until the yield's relative"
+                          " statistical error is below this (e.g. 0.002)."),
+    ] = None,
+    max_per_energy: Annotated[
+        int | None, typer.Option(help="Most particles per energy with --target-error.")
+    ] = None,
 ) -> None:
     """Build an emission table (photons per particle by distance, angle and time offset
     along the initial direction) for an energy grid; resumes an interrupted build."""
@@ -41,13 +50,17 @@ def tables_build(
         table = build_table(
             particle, grid, per_energy, seed=seed, medium=medium,
             settings=GeneratorSettings(yield_scale=yield_scale), resume=out, progress=True,
+            target_error=target_error, max_per_energy=max_per_energy,
         )
     except OSError as error:
         raise ConfigError(f"--out = {str(out)!r}: cannot write ({error.strerror or error})"
                           ) from None
     console().print(
-        f"{out}: {particle} in {medium}, {len(table.energies)} energies x {per_energy},"
-        f" {table.total_yield[-1]:.3g} photons at {table.energies[-1]:g} MeV"
+        f"{out}: {particle} in {medium}, {len(table.energies)} energies,"
+        f" {int(table.particles.sum())} particles, {table.total_yield[-1]:.3g} photons at"
+        f" {table.energies[-1]:g} MeV; largest relative error of the yield"
+        f" {float(np.max(table.yield_error / table.total_yield)):.2%}, of the angular profile"
+        f" {float(np.max(table.profile_error())):.2%}"
     )
 
 

@@ -36,11 +36,16 @@ from .settings import GeneratorSettings
 from .track import Track
 
 #: Version of the table file layout; readers refuse other versions.
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 #: Default energy grid, MeV (kinetic): 100 MeV to 5 GeV, log-spaced.
 DEFAULT_ENERGIES = tuple(float(e) for e in np.geomspace(100.0, 5000.0, 8).round(1))
-#: Default bins per axis: distance, cos(angle), time offset.
-DISTANCE_BINS, COS_BINS, TIME_BINS = 100, 80, 40
+#: Default bins per axis: distance, time offset.
+DISTANCE_BINS, TIME_BINS = 100, 40
+#: Bin edges of cos(angle to the initial direction): 0.005 wide over 0.55-0.95, where the
+#: Cherenkov peaks of water and scintillator lie (a muon's ring is ~0.02-0.03 wide in
+#: cos), 0.05 wide below and 0.01 wide above.
+COS_EDGES = np.concatenate([np.linspace(-1.0, 0.55, 32), np.linspace(0.55, 0.95, 81)[1:],
+                            np.linspace(0.95, 1.0, 6)[1:]])
 #: Time offsets histogrammed, ns (w.r.t. the light-speed front).
 TIME_RANGE = (-2.0, 18.0)
 
@@ -53,7 +58,8 @@ class EmissionTable:
         particle: the species ("mu-", "e-", ...).
         medium: the medium's name.
         energies: (E,) kinetic energies, MeV.
-        distance_edges: (D + 1,) bin edges of the distance along the initial direction, m.
+        distance_edges: (E, D + 1) bin edges of the distance along the initial direction,
+            m, per energy (0 to the energy's light extent, ``light_extent``).
         cos_edges: (A + 1,) bin edges of cos(angle to the initial direction).
         time_edges: (T + 1,) bin edges of the emission time minus z / c, ns.
         photons: (E, D, A) mean photons per particle per (distance, cos) bin.
@@ -61,8 +67,12 @@ class EmissionTable:
         total_yield: (E,) mean photons per particle (all of them, in or out of range).
         yield_spread: (E,) standard deviation of the photons per particle.
         track_length: (E,) mean path length of the primary, m.
-        per_energy: particles generated per energy.
-        settings: generator settings and seed, as a JSON-able dict.
+        particles: (E,) particles generated at each energy.
+        yield_error: (E,) standard error of ``total_yield``.
+        angular_error: (E, A) standard error of ``photons`` summed over distance (the
+            angular profile), photons per particle per bin.
+        per_energy: particles per batch (the whole count without an error target).
+        settings: generator settings, seed and error target, as a JSON-able dict.
     """
 
     particle: str
@@ -76,35 +86,87 @@ class EmissionTable:
     total_yield: np.ndarray
     yield_spread: np.ndarray
     track_length: np.ndarray
+    particles: np.ndarray
+    yield_error: np.ndarray
+    angular_error: np.ndarray
     per_energy: int
     settings: dict
 
+    def profile_error(self) -> np.ndarray:
+        """(E,) statistical error of the angular profile: the summed standard errors of
+        its bins over its photons (the photon-weighted mean relative error)."""
+        profile = self.photons.sum(axis=1)
+        return self.angular_error.sum(axis=1) / np.maximum(profile.sum(axis=1), 1e-300)
 
-def default_max_distance(particle: str) -> float:
-    """Distance range of the table, m: 25 m for muons (5 GeV range ~22 m in water), 10 m
-    for electrons, positrons and photons (showers end within ~8 m at 5 GeV)."""
-    return 25.0 if particle.startswith("mu") else 10.0
+
+#: Particles of the pilot run that sets an energy's distance range (``light_extent``).
+PILOT_PARTICLES = 8
+#: The distance range is this multiple of the pilot's 99.9 % light quantile along z.
+EXTENT_MARGIN = 1.15
+#: Smallest distance range, m.
+MINIMUM_EXTENT = 0.01
 
 
-def _energy_row(particle, energy, per_energy, seed, medium, settings, edges):
-    """Histograms and moments of ``per_energy`` particles at one energy (their seeds are
-    the children of the ``SeedSequence`` ``seed``)."""
+def light_extent(particle, energy, seed, medium, settings) -> float:
+    """Distance range (m) of one energy's table: ``EXTENT_MARGIN`` x the 99.9 % quantile
+    of the emission points' z over ``PILOT_PARTICLES`` particles (seeds: children of the
+    ``SeedSequence`` ``seed`` spawned before the table's own particles), at least
+    ``MINIMUM_EXTENT``. Bins then follow the light's extent at every energy (a 60 MeV
+    muon's ~0.1 m as well as a 5 GeV muon's ~20 m), so the model can interpolate in
+    energy at a fixed fraction of the extent."""
+    z = [generate(Track(particle, (0, 0, 0), (0, 0, 1), energy), child, medium,
+                  settings).position[:, 2] for child in seed.spawn(PILOT_PARTICLES)]
+    z = np.concatenate(z).astype(np.float64)
+    quantile = float(np.quantile(z, 0.999)) if z.size else 0.0
+    return max(MINIMUM_EXTENT, EXTENT_MARGIN * quantile)
+
+
+#: The per-energy results of a build, in the order ``_energy_row`` returns them.
+ROW_FIELDS = ("distance_edges", "photons", "time_offsets", "total_yield", "yield_spread",
+              "track_length", "particles", "yield_error", "angular_error")
+
+
+def _energy_row(particle, energy, per_energy, seed, medium, settings, edges,
+                target_error=None, max_per_energy=None):
+    """Histograms, moments and errors of the particles at one energy (``ROW_FIELDS``).
+
+    Particles come in batches of ``per_energy`` (their seeds the successive children of
+    the ``SeedSequence`` ``seed``); without ``target_error`` one batch, else batches until
+    the relative error of the yield is below it, or ``max_per_energy`` particles.
+    """
     distance_edges, cos_edges, time_edges = edges
+    if distance_edges is None:
+        extent = light_extent(particle, energy, seed, medium, settings)
+        distance_edges = np.linspace(0.0, extent, DISTANCE_BINS + 1)
     photons = np.zeros((len(distance_edges) - 1, len(cos_edges) - 1))
     times = np.zeros((len(distance_edges) - 1, len(time_edges) - 1))
+    angular_squares = np.zeros(len(cos_edges) - 1)
     yields, lengths = [], []
     scale = settings.yield_scale
-    for child in seed.spawn(per_energy):
-        event = generate(Track(particle, (0, 0, 0), (0, 0, 1), energy), child, medium, settings)
-        z = event.position[:, 2].astype(np.float64)
-        cos = event.direction[:, 2].astype(np.float64)
-        offset = event.time.astype(np.float64) - z / SPEED_OF_LIGHT
-        photons += np.histogram2d(z, cos, bins=(distance_edges, cos_edges))[0]
-        times += np.histogram2d(z, offset, bins=(distance_edges, time_edges))[0]
-        yields.append(len(event) / scale)
-        lengths.append(float(event.tracks.length[0]))
-    norm = 1.0 / (per_energy * scale)
-    return photons * norm, times * norm, np.mean(yields), np.std(yields), np.mean(lengths)
+    while True:
+        for child in seed.spawn(per_energy):
+            event = generate(Track(particle, (0, 0, 0), (0, 0, 1), energy), child, medium,
+                             settings)
+            z = event.position[:, 2].astype(np.float64)
+            cos = event.direction[:, 2].astype(np.float64)
+            offset = event.time.astype(np.float64) - z / SPEED_OF_LIGHT
+            histogram = np.histogram2d(z, cos, bins=(distance_edges, cos_edges))[0] / scale
+            photons += histogram
+            angular_squares += histogram.sum(axis=0) ** 2
+            times += np.histogram2d(z, offset, bins=(distance_edges, time_edges))[0] / scale
+            yields.append(len(event) / scale)
+            lengths.append(float(event.tracks.length[0]))
+        n = len(yields)
+        mean_yield = float(np.mean(yields))
+        yield_error = float(np.std(yields, ddof=1) / np.sqrt(n)) if n > 1 else np.inf
+        profile = photons.sum(axis=0) / n
+        variance = np.maximum(angular_squares / n - profile**2, 0.0) * n / max(n - 1, 1)
+        angular_error = np.sqrt(variance / n) if n > 1 else np.full_like(profile, np.inf)
+        precise = target_error is None or yield_error <= target_error * mean_yield
+        if precise or max_per_energy is None or n + per_energy > max_per_energy:
+            break
+    return (distance_edges, photons / n, times / n, mean_yield, float(np.std(yields)),
+            float(np.mean(lengths)), n, yield_error, angular_error)
 
 
 def build_table(
@@ -118,22 +180,29 @@ def build_table(
     max_distance: float | None = None,
     resume: str | Path | None = None,
     progress: bool = False,
+    target_error: float | None = None,
+    max_per_energy: int | None = None,
 ) -> EmissionTable:
-    """Generate ``per_energy`` particles at every energy and tabulate their light.
+    """Generate particles at every energy and tabulate their light.
 
     Args:
         particle: "mu-", "mu+", "e-", "e+" or "gamma".
         energies: kinetic energies, MeV (increasing).
-        per_energy: particles per energy (>= 1).
+        per_energy: particles per energy (>= 1); with ``target_error``, per batch.
         seed: energy i uses ``SeedSequence(seed).spawn(len(energies))[i]``, one child per
             particle: the same seed gives the same table, whatever is resumed.
         medium: generator medium ("water", "scintillator").
         settings: generator settings; ``yield_scale`` < 1 makes the build faster (counts
             are divided by it, so the table means photons at full yield).
-        max_distance: distance range, m (default ``default_max_distance``).
+        max_distance: one distance range for every energy, m (default: each energy's
+            ``light_extent``).
         resume: a table file to write after every energy; energies already in it (same
             particle, grid, settings and seed) are read back instead of generated.
         progress: show a rich progress bar.
+        target_error: if given, batches of ``per_energy`` particles are generated until the
+            relative statistical error of the yield is below it (e.g. 0.002), or
+            ``max_per_energy`` particles (default 100 x ``per_energy``); the angular
+            profile's error is recorded (``EmissionTable.profile_error``).
 
     Returns:
         The ``EmissionTable``.
@@ -146,24 +215,30 @@ def build_table(
     settings = settings if settings is not None else GeneratorSettings()
     if not settings.yield_scale > 0:
         raise ConfigError(f"yield_scale = {format_value(settings.yield_scale)}: must be > 0")
-    reach = default_max_distance(particle) if max_distance is None else float(max_distance)
     edges = (
-        np.linspace(0.0, reach, DISTANCE_BINS + 1),
-        np.linspace(-1.0, 1.0, COS_BINS + 1),
+        None if max_distance is None else np.linspace(0.0, float(max_distance),
+                                                      DISTANCE_BINS + 1),
+        COS_EDGES.copy(),
         np.linspace(*TIME_RANGE, TIME_BINS + 1),
     )
+    if target_error is not None and not 0.0 < float(target_error) < 1.0:
+        raise ConfigError(f"target_error = {format_value(target_error)}: must be in (0, 1)")
+    if target_error is not None and max_per_energy is None:
+        max_per_energy = 100 * per_energy
     meta = {"generator": dataclasses.asdict(settings), "seed": int(seed)}
+    if max_distance is not None:
+        meta["max_distance"] = float(max_distance)
+    if target_error is not None:
+        meta["target_error"] = float(target_error)
+        meta["max_per_energy"] = int(max_per_energy)
     table = _empty_table(particle, medium, energies, edges, per_energy, meta)
     done = _resumed_rows(resume, table) if resume is not None else set()
     children = np.random.SeedSequence(seed).spawn(len(energies))
     rows = [i for i in range(len(energies)) if i not in done]
     for i in with_progress(rows, f"{particle} table", show=progress):
-        row = _energy_row(particle, energies[i], per_energy, children[i], medium, settings, edges)
-        for field, value in zip(
-            ("photons", "time_offsets", "total_yield", "yield_spread", "track_length"),
-            row,
-            strict=True,
-        ):
+        row = _energy_row(particle, energies[i], per_energy, children[i], medium, settings,
+                          edges, target_error, max_per_energy)
+        for field, value in zip(ROW_FIELDS, row, strict=True):
             getattr(table, field)[i] = value
         done.add(i)
         if resume is not None:
@@ -181,12 +256,13 @@ def _check_energies(energies) -> np.ndarray:
 
 
 def _empty_table(particle, medium, energies, edges, per_energy, settings) -> EmissionTable:
-    n, (d, a, t) = len(energies), (len(e) - 1 for e in edges)
+    n, d, a, t = len(energies), DISTANCE_BINS, len(edges[1]) - 1, len(edges[2]) - 1
     return EmissionTable(
         particle=particle,
         medium=medium,
         energies=energies,
-        distance_edges=edges[0],
+        distance_edges=np.zeros((n, d + 1)) if edges[0] is None
+        else np.broadcast_to(edges[0], (n, d + 1)).copy(),
         cos_edges=edges[1],
         time_edges=edges[2],
         photons=np.zeros((n, d, a)),
@@ -194,6 +270,9 @@ def _empty_table(particle, medium, energies, edges, per_energy, settings) -> Emi
         total_yield=np.zeros(n),
         yield_spread=np.zeros(n),
         track_length=np.zeros(n),
+        particles=np.zeros(n, dtype=np.int64),
+        yield_error=np.zeros(n),
+        angular_error=np.zeros((n, a)),
         per_energy=per_energy,
         settings=settings,
     )
@@ -209,6 +288,9 @@ _ARRAYS = (
     "total_yield",
     "yield_spread",
     "track_length",
+    "particles",
+    "yield_error",
+    "angular_error",
 )
 
 
@@ -272,12 +354,13 @@ def _resumed_rows(path, table: EmissionTable) -> set[int]:
         and old.medium == table.medium
         and old.per_energy == table.per_energy
         and old.settings == json.loads(json.dumps(table.settings))
-        and all(np.array_equal(getattr(old, n), getattr(table, n)) for n in _ARRAYS[:4])
+        and all(np.array_equal(getattr(old, n), getattr(table, n))
+                for n in ("energies", "cos_edges", "time_edges"))
     )
     if not same:
         raise ConfigError(f"{path}: holds a different build; remove it or choose another file")
     for i in completed:
-        for name in ("photons", "time_offsets", "total_yield", "yield_spread", "track_length"):
+        for name in ROW_FIELDS:
             getattr(table, name)[i] = getattr(old, name)[i]
     return set(completed)
 

@@ -1,0 +1,269 @@
+"""The spline emission model: C2 tensor-product cubic splines through an emission table.
+
+The table (``generator.emission_tables``) gives, per kinetic energy E_k, the photons per
+particle per (distance s, cos(angle) to the initial direction) bin and per (s, time
+offset) bin, with s binned from 0 to the energy's light extent S_k. The model works in
+the fraction x = s / S(E) of the extent (so a muon's end of track sits at the same x at
+every energy and interpolates in energy without blurring) and interpolates
+
+- g = sqrt(d^2N / dx dcos) (photons per particle per unit x per unit cos), so that the
+  density g^2 is never negative and the splines ring less at the Cherenkov peak, on
+  the bin centres in (log E, x, cos); d^2N / ds dcos = g^2 / S(E), scaled so that it
+  integrates to the yield;
+- the total yield per particle and the extent S in log E;
+- the mean and variance of the emission-time offset (t - s / c, ns) per (E, x).
+
+Along log E a natural cubic spline (C2) is linear in the node values, so one energy
+reduces the table to a weighted sum of its nodes (``energy_weights``), and the
+derivatives of the (s, cos) splines, computed once per node, combine with the same
+weights: a track's ``EmissionSlice`` costs one (K,)-weighted sum, and each evaluation a
+bicubic Hermite patch. A node of zero light at the Cherenkov threshold (``threshold``,
+MeV) makes the light vanish smoothly there; energies are clamped to [threshold, the
+largest node] (documented: a traced energy beyond the table does not extrapolate).
+Written with ``interpax`` for the spline derivatives; the patch evaluation is here
+because it runs on precomputed derivatives combined per track.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..generator.emission_tables import EmissionTable
+from ..numerics import default_float_dtype
+from ..pytree import pytree_dataclass, static_field
+
+
+@pytree_dataclass
+class EmissionSlice:
+    """The emission model at one energy: splines in (x = s / extent, cos) and in x.
+
+    Attributes:
+        fraction: (D,) knots in x (bin centres in [0, 1]).
+        cos: (A,) knots in cos(angle to the initial direction).
+        root: (4, D, A) sqrt(d^2N / dx dcos) and its derivatives d/dx, d/dcos,
+            d^2/dx dcos at the knots (photons^(1/2) per particle).
+        time_mean: (2, D) mean emission-time offset t - s / c (ns) and its d/dx.
+        time_variance: (2, D) its variance (ns^2) and d/dx.
+        extent: the light's extent S along the initial direction, m.
+        scale: factor making the density integrate to ``total_yield`` (per m: 1 / S x
+            the yield over the knots' sum).
+        total_yield: photons per particle.
+    """
+
+    fraction: jax.Array
+    cos: jax.Array
+    root: jax.Array
+    time_mean: jax.Array
+    time_variance: jax.Array
+    extent: jax.Array
+    scale: jax.Array
+    total_yield: jax.Array
+
+    def density(self, s, cos):
+        """d^2N / ds dcos at (s m, cos), photons per particle per m per unit cos; 0
+        outside 0 <= s <= extent, the last knots' values beyond the cos knots."""
+        x = s / self.extent
+        root = _bicubic(self.fraction, self.cos, self.root, x, cos)
+        return jnp.where((x >= 0.0) & (x <= 1.0), self.scale * root * root, 0.0)
+
+    def time_moments(self, s):
+        """(mean ns, variance ns^2) of the emission-time offset t - s / c at s (m)."""
+        x = s / self.extent
+        mean = _cubic(self.fraction, self.time_mean[0], self.time_mean[1], x)
+        variance = _cubic(self.fraction, self.time_variance[0], self.time_variance[1], x)
+        return mean, jnp.maximum(variance, 0.0)
+
+
+@pytree_dataclass
+class SplineEmission:
+    """A C2 spline model of one emission table (module docstring).
+
+    Attributes:
+        log_energy: (K,) log of the knots' kinetic energies, log(MeV); the first is the
+            Cherenkov threshold (a node of no light).
+        fraction: (D,) knots in x = s / extent.
+        cos: (A,) knots in cos.
+        root: (K, 4, D, A) per energy node: sqrt density and derivatives (``EmissionSlice``).
+        time_mean, time_variance: (K, 2, D) per node (``EmissionSlice``).
+        extent: (K,) light extent per node, m.
+        total_yield: (K,) photons per particle.
+        particle: the table's particle (static).
+        medium: the table's medium (static).
+    """
+
+    log_energy: jax.Array
+    fraction: jax.Array
+    cos: jax.Array
+    root: jax.Array
+    time_mean: jax.Array
+    time_variance: jax.Array
+    extent: jax.Array
+    total_yield: jax.Array
+    particle: str = static_field(default="mu-")
+    medium: str = static_field(default="water")
+
+    @property
+    def energy_range(self) -> tuple[float, float]:
+        """(threshold, largest node) kinetic energy, MeV."""
+        log_energy = np.asarray(self.log_energy)
+        return float(np.exp(log_energy[0])), float(np.exp(log_energy[-1]))
+
+    def energy_weights(self, energy):
+        """(K,) weights w_k with f(E) = sum_k w_k f_k for the natural cubic spline in
+        log E; E (MeV) clamped to ``energy_range``."""
+        import interpax
+
+        log_e = jnp.clip(jnp.log(jnp.asarray(energy, self.log_energy.dtype)),
+                         self.log_energy[0], self.log_energy[-1])
+        identity = jnp.eye(self.log_energy.shape[0], dtype=self.log_energy.dtype)
+        with jax.numpy_dtype_promotion("standard"):  # interpax mixes int and float
+            return interpax.interp1d(log_e[None], self.log_energy, identity, method="cubic2",
+                                     extrap=True)[0]
+
+    def at(self, energy) -> EmissionSlice:
+        """The model at kinetic energy ``energy`` (MeV, clamped to ``energy_range``)."""
+        weights = self.energy_weights(energy)
+        combine = lambda table: jnp.tensordot(weights, table, axes=1)  # noqa: E731
+        root = combine(self.root)
+        total_yield = jnp.maximum(combine(self.total_yield), 0.0)
+        extent = combine(self.extent)
+        cell = _cell_widths(self.fraction)[:, None] * _cell_widths(self.cos)[None, :]
+        knots_sum = jnp.sum(root[0] * root[0] * cell)
+        safe = jnp.where(knots_sum > 0, knots_sum, 1.0)
+        return EmissionSlice(
+            fraction=self.fraction,
+            cos=self.cos,
+            root=root,
+            time_mean=combine(self.time_mean),
+            time_variance=combine(self.time_variance),
+            extent=extent,
+            scale=jnp.where(knots_sum > 0, total_yield / safe, 0.0) / extent,
+            total_yield=total_yield,
+        )
+
+    def yield_at(self, energy):
+        """Photons per particle at kinetic energy ``energy`` (MeV, clamped)."""
+        return jnp.maximum(self.energy_weights(energy) @ self.total_yield, 0.0)
+
+    def density(self, energy, s, cos):
+        """d^2N / ds dcos (photons per particle per m per unit cos) at one energy (MeV)
+        and points (s m, cos)."""
+        return self.at(energy).density(s, cos)
+
+
+def spline_emission(table: EmissionTable, threshold: float, dtype=None) -> SplineEmission:
+    """Fit the spline model to ``table``; ``threshold``: the particle's Cherenkov threshold
+    in the table's medium (kinetic MeV, below the table's first energy); arrays of
+    ``dtype`` (default JAX's default float)."""
+    import interpax
+
+    energies = np.asarray(table.energies, np.float64)
+    if not 0.0 < threshold < energies[0]:
+        raise ValueError(f"threshold = {threshold:g} MeV: must lie below the table's first"
+                         f" energy {energies[0]:g} MeV")
+    bins = table.photons.shape[1]
+    fraction = (np.arange(bins) + 0.5) / bins
+    cos = 0.5 * (table.cos_edges[1:] + table.cos_edges[:-1])
+    widths = np.outer(np.full(bins, 1.0 / bins), np.diff(table.cos_edges))
+    root = np.sqrt(np.maximum(table.photons, 0.0) / widths)  # (E, D, A)
+    root = np.concatenate([np.zeros_like(root[:1]), root])
+    dtype = default_float_dtype() if dtype is None else np.dtype(dtype)
+    fraction, cos, root = (np.asarray(x, dtype) for x in (fraction, cos, root))
+    with jax.numpy_dtype_promotion("standard"):  # interpax mixes int and float
+        d_ds = np.asarray(interpax.approx_df(fraction, root, method="cubic2", axis=1))
+        d_dcos = np.asarray(interpax.approx_df(cos, root, method="cubic2", axis=2))
+        d2 = np.asarray(interpax.approx_df(cos, d_ds, method="cubic2", axis=2))
+    mean, variance = _time_moments(table)
+    mean = np.concatenate([mean[:1], mean])  # the threshold node emits nothing
+    variance = np.concatenate([variance[:1], variance])
+    mean, variance = np.asarray(mean, dtype), np.asarray(variance, dtype)
+    with jax.numpy_dtype_promotion("standard"):
+        times = [np.stack([m, np.asarray(interpax.approx_df(fraction, m, method="cubic2",
+                                                            axis=1))], axis=1)
+                 for m in (mean, variance)]
+    extent = np.asarray(table.distance_edges, np.float64)[:, -1]
+    cast = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+    return SplineEmission(
+        log_energy=cast(np.log(np.concatenate([[threshold], energies]))),
+        fraction=cast(fraction),
+        cos=cast(cos),
+        root=cast(np.stack([root, d_ds, d_dcos, d2], axis=1)),
+        time_mean=cast(times[0]),
+        time_variance=cast(times[1]),
+        extent=cast(np.concatenate([extent[:1], extent])),
+        total_yield=cast(np.concatenate([[0.0], table.total_yield])),
+        particle=table.particle,
+        medium=table.medium,
+    )
+
+
+def _time_moments(table: EmissionTable) -> tuple[np.ndarray, np.ndarray]:
+    """(E, D) mean and variance of the emission-time offset per distance bin (ns, ns^2);
+    bins without light take the nearest lit bin's values along s."""
+    centres = 0.5 * (table.time_edges[1:] + table.time_edges[:-1])
+    counts = table.time_offsets  # (E, D, T)
+    total = counts.sum(axis=2)
+    safe = np.where(total > 0, total, 1.0)
+    mean = (counts * centres).sum(axis=2) / safe
+    variance = (counts * centres**2).sum(axis=2) / safe - mean**2
+    for row in range(counts.shape[0]):
+        lit = np.flatnonzero(total[row] > 0)
+        if lit.size == 0:
+            continue
+        nearest = lit[np.argmin(np.abs(np.arange(counts.shape[1])[:, None] - lit), axis=1)]
+        mean[row], variance[row] = mean[row, nearest], variance[row, nearest]
+    return mean, np.maximum(variance, 0.0)
+
+
+def _cell_widths(knots):
+    """Width of the cell around each knot (midpoints between knots; the end cells reach
+    as far beyond the end knots as half their neighbouring interval)."""
+    gaps = knots[1:] - knots[:-1]
+    return 0.5 * (jnp.concatenate([gaps[:1], gaps]) + jnp.concatenate([gaps, gaps[-1:]]))
+
+
+def _locate(knots, x):
+    """Index i of the interval [knots[i], knots[i+1]] holding x (clamped) and t in [0, 1]
+    (beyond the ends t extrapolates linearly: callers clamp or mask)."""
+    i = jnp.clip(jnp.searchsorted(knots, x, side="right") - 1, 0, knots.shape[0] - 2)
+    h = knots[i + 1] - knots[i]
+    return i, (x - knots[i]) / h, h
+
+
+def _hermite(t):
+    """Cubic Hermite basis (h00, h10, h01, h11) at t."""
+    t2, t3 = t * t, t * t * t
+    return 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + t, -2 * t3 + 3 * t2, t3 - t2
+
+
+def _cubic(knots, values, slopes, x):
+    """Cubic Hermite interpolation of (values, slopes) at x (clamped to the knots)."""
+    x = jnp.clip(x, knots[0], knots[-1])
+    i, t, h = _locate(knots, x)
+    h00, h10, h01, h11 = _hermite(t)
+    return h00 * values[i] + h10 * h * slopes[i] + h01 * values[i + 1] + h11 * h * slopes[i + 1]
+
+
+def _bicubic(x_knots, y_knots, table, x, y):
+    """Bicubic Hermite patch of ``table`` (4, X, Y): f, df/dx, df/dy, d2f/dxdy at (x, y)
+    (clamped to the knots)."""
+    x = jnp.clip(x, x_knots[0], x_knots[-1])
+    y = jnp.clip(y, y_knots[0], y_knots[-1])
+    i, u, hx = _locate(x_knots, x)
+    j, v, hy = _locate(y_knots, y)
+    bx = _hermite(u)
+    by = _hermite(v)
+    f, fx, fy, fxy = table
+    total = 0.0
+    # (weight, knot, slope?) along x and y: h00 at i, h10 h at i, h01 at i+1, h11 h at i+1
+    x_terms = ((bx[0], i, False), (bx[1] * hx, i, True), (bx[2], i + 1, False),
+               (bx[3] * hx, i + 1, True))
+    y_terms = ((by[0], j, False), (by[1] * hy, j, True), (by[2], j + 1, False),
+               (by[3] * hy, j + 1, True))
+    for wx, ii, x_slope in x_terms:
+        for wy, jj, y_slope in y_terms:
+            source = (fxy if y_slope else fx) if x_slope else (fy if y_slope else f)
+            total = total + wx * wy * source[ii, jj]
+    return total
