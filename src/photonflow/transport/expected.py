@@ -27,6 +27,10 @@ from weakref import WeakKeyDictionary
 import jax
 import jax.numpy as jnp
 
+from ..emission import emission_model
+from ..emission.models import cherenkov_spectral_factor
+from ..errors import ConfigError, format_value
+from ..generator import Track
 from ..geometry.detector import Detector
 from ..geometry.sensor_arrays import Sensors, sensors_for
 from ..geometry.sensor_grid import SensorGrid
@@ -38,6 +42,8 @@ from ..sources import check_source
 from .direct import direct_light_jit
 from .indirect import indirect_light_jit
 from .optics import TransportConfig
+from .track_expected import track_expected_jit
+from .tracks import check_track, detector_medium, principal_sensor_model
 
 
 def expected(
@@ -86,10 +92,25 @@ def expected(
     if is_concrete(params):
         validate_params(params, detector.n_sensors)
     if is_concrete(source):
-        check_source(source, detector)
+        if isinstance(source, Track):
+            check_expected_track(source, detector)
+        else:
+            check_source(source, detector)
     dtype = jnp.result_type(params.absorption_length)
     predict = expected_function(detector, dtype, config=config, grid=grid)
     return predict(params, source, key)
+
+
+def check_expected_track(track: Track, detector: Detector) -> Track:
+    """Raise a one-line ``ConfigError`` for a track outside the detector
+    (``check_track``) or with an energy beyond its emission model's tables."""
+    check_track(track, detector)
+    top = emission_model(track.particle, detector_medium(detector)).energy_range[1]
+    energy = float(jnp.max(jnp.asarray(track.energy)))
+    if energy > top * (1.0 + 1e-9):
+        raise ConfigError(f"track.energy = {format_value(energy)} MeV: beyond the emission"
+                          f" tables of {track.particle} (up to {top:g} MeV)")
+    return track
 
 
 def is_concrete(tree) -> bool:
@@ -134,9 +155,17 @@ def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
     """``expected_function``'s predictor, uncached."""
     cast = functools.partial(strict_array, dtype=dtype)
     sensors = sensors_for(detector, dtype, grid)
+    medium = detector_medium(detector)
+    spectral = cherenkov_spectral_factor(principal_sensor_model(detector), medium)
 
     def predict(params: Params, source, key=None) -> Prediction:
         """Expected p.e. and time mixture per sensor (see ``expected``); no checks."""
+        if isinstance(source, Track):
+            model = emission_model(source.particle, medium, dtype)
+            return track_expected_jit(
+                sensors, jax.tree.map(cast, params), jax.tree.map(cast, source), model,
+                cast(spectral), window=tuple(float(x) for x in config.window),
+            )
         return expected_jit(
             sensors, jax.tree.map(cast, params), jax.tree.map(cast, source), key,
             shape=detector.shape, config=config,

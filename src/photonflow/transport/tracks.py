@@ -122,12 +122,17 @@ def track_truth(track: Track, seed: int) -> Truth:
 
 
 def check_track(track: Track, detector: Detector) -> Track:
-    """Raise a one-line ``ConfigError`` if the track starts outside the detector."""
-    distance = float(np.asarray(detector.shape.distance_to_wall(np.asarray(track.position))))
-    if distance < 0:
+    """Raise a one-line ``ConfigError`` if the track (or a track of a batch) starts
+    outside the detector."""
+    positions = np.asarray(track.position, dtype=np.float64).reshape(-1, 3)
+    distance = np.asarray(detector.shape.distance_to_wall(positions), dtype=np.float64)
+    bad = np.flatnonzero(distance < 0)
+    if bad.size:
+        i = int(bad[0])
+        where = f"[{i}]" if np.ndim(track.position) > 1 else ""
         raise ConfigError(
-            f"track.position = {format_value(list(track.position))}: outside the "
-            f"{detector.shape.describe()} by {-distance:.3g} m"
+            f"track.position{where} = {format_value(positions[i].tolist())}: outside the "
+            f"{detector.shape.describe()} by {-distance[i]:.3g} m"
         )
     return track
 

@@ -1,0 +1,71 @@
+"""The emission models that ship with photonflow, by particle and medium."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import numpy as np
+
+from ..errors import ConfigError
+from ..generator.cherenkov import cherenkov_threshold
+from ..generator.emission_tables import SHIPPED, shipped_table
+from ..generator.materials import refractive_index, resolve_material
+from ..generator.particles import PARTICLES
+from ..generator.settings import GeneratorSettings
+from ..numerics import default_float_dtype
+from .spline import SplineEmission, spline_emission
+
+#: Particles whose light is modelled with another's table (the same light within the
+#: tables' errors is to be measured; docs/generator.md).
+SAME_LIGHT = {"mu+": "mu-", "e+": "e-"}
+
+
+def threshold_energy(particle: str, medium: str) -> float:
+    """Cherenkov threshold (kinetic MeV) of ``particle`` in ``medium`` at the shortest
+    wavelength of the generator's band (where the refractive index is largest)."""
+    material = resolve_material(medium)
+    shortest = GeneratorSettings().band[0]
+    return float(cherenkov_threshold(PARTICLES[particle].mass,
+                                     float(refractive_index(material, shortest))))
+
+
+def emission_model(particle: str, medium: str = "water", dtype=None) -> SplineEmission:
+    """The shipped ``SplineEmission`` of ``particle`` in ``medium`` (arrays of ``dtype``,
+    default JAX's default float), built once per process.
+
+    Raises:
+        ConfigError: no table ships for that particle and medium (one line).
+    """
+    dtype = default_float_dtype() if dtype is None else np.dtype(dtype)
+    return _model(SAME_LIGHT.get(particle, particle), medium, dtype.name)
+
+
+@functools.cache
+def _model(particle: str, medium: str, dtype_name: str) -> SplineEmission:
+    if (particle, medium) not in SHIPPED:
+        raise ConfigError(
+            f"track.particle = {particle!r} in {medium!r}: no emission model ships for it"
+            f" (shipped: {', '.join(f'{p} in {m}' for p, m in sorted(SHIPPED))})"
+        )
+    table = shipped_table(particle, medium)
+    with jax.ensure_compile_time_eval():  # built eagerly even when first asked in a trace
+        return spline_emission(table, threshold_energy(particle, medium), np.dtype(dtype_name))
+
+
+def cherenkov_spectral_factor(sensor, medium: str, points: int = 601) -> float:
+    """Mean relative spectral response (``photosensors.relative_response``) of ``sensor``
+    over the Cherenkov spectrum of a beta = 1 particle in ``medium`` within the
+    generator's band (dN/dlambda ~ (1 - 1 / n(lambda)^2) / lambda^2): the factor by which
+    the QE at the reference wavelength turns into the detection probability of a table
+    photon (the sampled mode keeps photons by their own wavelength)."""
+    from ..photosensors import relative_response
+
+    material = resolve_material(medium)
+    low, high = GeneratorSettings().band
+    wavelength = np.linspace(low, high, points)
+    index = np.asarray(refractive_index(material, wavelength), np.float64)
+    spectrum = (1.0 - 1.0 / index**2) / wavelength**2
+    response = np.asarray(relative_response(sensor, wavelength), np.float64)
+    return float(np.trapezoid(response * spectrum, wavelength)
+                 / np.trapezoid(spectrum, wavelength))
