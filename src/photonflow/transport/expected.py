@@ -164,7 +164,7 @@ def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
             model = emission_model(source.particle, medium, dtype)
             return track_expected_jit(
                 sensors, jax.tree.map(cast, params), jax.tree.map(cast, source), model,
-                cast(spectral), window=tuple(float(x) for x in config.window),
+                cast(spectral), key, shape=detector.shape, config=config,
             )
         return expected_jit(
             sensors, jax.tree.map(cast, params), jax.tree.map(cast, source), key,

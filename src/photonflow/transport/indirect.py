@@ -175,14 +175,17 @@ def indirect_light_jit(
         from_source = source_probes(source, probe_key, config.specular_probes * config.n_rays,
                                     dtype)
         everything = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), from_source, below_cap)
+        quadrature = getattr(source, "mirror_quadrature", True)
         mirrored = specular_probes(
-            params, shape, sensors, reference_time, everything, config.n_bounces
+            params, shape, sensors, reference_time, everything, config.n_bounces, quadrature
         )
-        if mirror is None:
-            mirror = mirror_paths(shape, sensors, source)
-        quadrature = mirror_light(params, mirror, source, reference_time)
-        total = [t + m + jnp.zeros_like(t).at[0].set(q)
-                 for t, m, q in zip(total, mirrored, quadrature, strict=True)]
+        total = [t + m for t, m in zip(total, mirrored, strict=True)]
+        if quadrature:
+            if mirror is None:
+                mirror = mirror_paths(shape, sensors, source)
+            light = mirror_light(params, mirror, source, reference_time)
+            total = [t + jnp.zeros_like(t).at[0].set(q)
+                     for t, q in zip(total, light, strict=True)]
     charge, mean, variance = _moments(total, reference_time)
     return IndirectLight(
         charge=charge, time_mean=mean, time_variance=variance, residual_weight=residual

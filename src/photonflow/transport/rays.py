@@ -87,7 +87,10 @@ def leaving_source(source, key, count: int, dtype) -> dict:
     """``count`` rays leaving the source with N / count photons each: their origins
     (count, 3) m, unit directions (count, 3) from a shifted Fibonacci lattice (``key``)
     through the source's inverse CDF, expected photons (count,) and times (count,) ns,
-    as the fields of a ``Rays`` or ``Probes``."""
+    as the fields of a ``Rays`` or ``Probes``. An emitter with its own ``leaving(key,
+    count, dtype)`` (a track, ``track_rays.TrackEmitter``) makes them itself."""
+    if hasattr(source, "leaving"):
+        return source.leaving(key, count, dtype)
     u_emit = shifted_lattice(key, count, dtype)
     return {
         "origins": jnp.broadcast_to(source.position, (count, 3)),

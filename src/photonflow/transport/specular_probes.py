@@ -34,7 +34,8 @@ def source_probes(source, key, count: int, dtype) -> Probes:
                   order=jnp.zeros(count, jnp.int32))
 
 
-def specular_probes(params, shape, sensors: Sensors, reference, probes: Probes, n_orders: int):
+def specular_probes(params, shape, sensors: Sensors, reference, probes: Probes, n_orders: int,
+                    source_quadrature: bool = True):
     """Light mirrored once by the wall into a sensor, from probe rays: (n_orders, N) sums
     of c, c t, c t^2 (t - reference) like ``next_event.next_event_sums``, by the order of the mirror
     vertex (slot k - 1 for a probe leaving a vertex of order k - 1; the source is order
@@ -48,7 +49,8 @@ def specular_probes(params, shape, sensors: Sensors, reference, probes: Probes, 
     delta function in direction that a next-event estimate cannot see; probes with no
     branch choices find it with far smaller weights than the rays' own continuations.
     Probes from the source count only paths focused below ``FOCUSING_LIMIT`` (the rest
-    is ``mirror_light``); ``probes.order`` (P,) says which left the source (0).
+    is ``mirror_light``), or every path without ``source_quadrature`` (a track);
+    ``probes.order`` (P,) says which left the source (0).
     """
     n = sensors.positions.shape[0]
     origins, directions = probes.origins, probes.directions
@@ -67,7 +69,8 @@ def specular_probes(params, shape, sensors: Sensors, reference, probes: Probes, 
     t_end, index, hit, _ = trace(shape, sensors, wall_point, mirrored)
     landing = wall_point + t_end[:, None] * mirrored
     focusing = jax.lax.stop_gradient(focusing_ratio(shape, origins, wall_point, landing))
-    counts = hit & reaches_wall & ((probes.order > 0) | (focusing < FOCUSING_LIMIT))
+    counted = (probes.order > 0) | (focusing < FOCUSING_LIMIT) if source_quadrature else True
+    counts = hit & reaches_wall & counted
     arrival = probes.time + travel_time(t_wall, params) - reference[index]
     sums = detect_on_segment(
         params, sensors, weight, arrival, mirrored, t_end, index, counts,
