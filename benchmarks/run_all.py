@@ -35,6 +35,7 @@ BENCHMARKS_FILE = ROOT / "BENCHMARKS.md"
 BENCHMARKS = {
     "transport": ["transport.py", "--rays", "1024"],
     "first_call": ["first_call.py"],
+    "tracks": ["tracks.py"],
 }
 
 

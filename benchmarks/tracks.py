@@ -1,0 +1,113 @@
+"""Expected track light benchmark (issue 24): ``python benchmarks/tracks.py``.
+
+A 1 GeV muon from the centre of SK along +x, the water defaults, float32: the expected
+prediction (forward), the value and gradient of the event likelihood (``nll``, charge +
+first-hit time, against one sampled event) with respect to the 7 track parameters
+(position, time, two direction angles, energy), and the forward of a batch of 64 tracks
+(``vmap``), for direct light only (``n_bounces=0``) and for direct + indirect light
+(2 bounces, 1,024 rays). Medians of 5 calls after compilation; each case runs in its own
+process (peak memory is per case). Prints a Markdown table for BENCHMARKS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import time
+
+CASES = {"direct": 0, "direct + indirect": 2}
+
+
+def _median_seconds(function, repeats: int = 5) -> float:
+    import jax
+    import numpy as np
+
+    jax.block_until_ready(function())
+    times = []
+    for _ in range(repeats):
+        began = time.perf_counter()
+        jax.block_until_ready(function())
+        times.append(time.perf_counter() - began)
+    return float(np.median(times))
+
+
+def measure(bounces: int) -> dict:
+    """One case in this process: seconds and peak resident memory (MB)."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import photonflow as pf
+    from photonflow.generator import stack_tracks
+
+    detector = pf.load_detector("SK")
+    params = pf.default_params(detector)
+    config = pf.TransportConfig(n_bounces=bounces, n_rays=1024)
+    predict = pf.expected_function(detector, config=config)
+    truth = pf.Track("mu-", [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], 1000.0, 0.0)
+    event = pf.sample(detector, params, truth, seed=1)
+
+    def track_of(x):
+        """Track from (x, y, z m, t ns, theta, phi rad, log E/MeV)."""
+        direction = jnp.stack([jnp.sin(x[4]) * jnp.cos(x[5]), jnp.sin(x[4]) * jnp.sin(x[5]),
+                               jnp.cos(x[4])])
+        return pf.Track("mu-", x[:3], direction, jnp.exp(x[6]), x[3])
+
+    start = jnp.array([0.0, 0.0, 0.0, 0.0, 0.5 * np.pi, 0.0, np.log(1000.0)])
+    forward = jax.jit(lambda x: predict(params, track_of(x)).charge)
+    loss = jax.jit(jax.value_and_grad(lambda x: pf.nll(predict(params, track_of(x)), event)))
+    rng = np.random.default_rng(0)
+    batch = stack_tracks([
+        pf.Track("mu-", rng.uniform(-5, 5, 3), direction / np.linalg.norm(direction),
+                 float(rng.uniform(500, 2000)), 0.0)
+        for direction in rng.normal(size=(64, 3))
+    ])
+    batched = jax.jit(jax.vmap(lambda track: predict(params, track).charge))
+    began = time.perf_counter()
+    jax.block_until_ready(forward(start))
+    compile_forward = time.perf_counter() - began
+    began = time.perf_counter()
+    jax.block_until_ready(loss(start))
+    compile_gradient = time.perf_counter() - began
+    result = {
+        "forward_s": _median_seconds(lambda: forward(start)),
+        "value_and_grad_s": _median_seconds(lambda: loss(start)),
+        "batch64_s": _median_seconds(lambda: batched(batch), repeats=3),
+        "compile_forward_s": compile_forward,
+        "compile_gradient_s": compile_gradient,
+    }
+    result["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--case", choices=list(CASES), help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.case is not None:
+        print(json.dumps(measure(CASES[args.case])))
+        return
+    from photonflow.benchmarking import machine_description
+
+    rows = {}
+    for case in CASES:
+        out = subprocess.run([sys.executable, __file__, "--case", case], check=True,
+                             capture_output=True, text=True).stdout
+        rows[case] = json.loads(out.strip().splitlines()[-1])
+    print(f"Machine: {machine_description()}\n")
+    print("| light | forward s | value+grad s (7 track parameters) | ratio | 64 tracks s"
+          " | tracks/s | peak RSS MB | compile fwd / grad s |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    for case, row in rows.items():
+        print(f"| {case} | {row['forward_s']:.3f} | {row['value_and_grad_s']:.3f}"
+              f" | {row['value_and_grad_s'] / row['forward_s']:.1f}"
+              f" | {row['batch64_s']:.2f} | {64 / row['batch64_s']:.0f}"
+              f" | {row['peak_rss_mb']:.0f}"
+              f" | {row['compile_forward_s']:.0f} / {row['compile_gradient_s']:.0f} |")
+
+
+if __name__ == "__main__":
+    main()
