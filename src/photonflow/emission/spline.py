@@ -224,23 +224,23 @@ def _merge_distance_bins(table: EmissionTable, merge: int) -> EmissionTable:
         distance_edges=table.distance_edges[:, ::merge],
         photons=merged(table.photons),
         time_offsets=merged(table.time_offsets),
+        offset_sums=merged(table.offset_sums),
     )
 
 
 def _time_moments(table: EmissionTable) -> tuple[np.ndarray, np.ndarray]:
-    """(E, D) mean and variance of the emission-time offset per distance bin (ns, ns^2);
-    bins without light take the nearest lit bin's values along s."""
-    centres = 0.5 * (table.time_edges[1:] + table.time_edges[:-1])
-    counts = table.time_offsets  # (E, D, T)
-    total = counts.sum(axis=2)
-    safe = np.where(total > 0, total, 1.0)
-    mean = (counts * centres).sum(axis=2) / safe
-    variance = (counts * centres**2).sum(axis=2) / safe - mean**2
-    for row in range(counts.shape[0]):
-        lit = np.flatnonzero(total[row] > 0)
+    """(E, D) mean and variance of the emission-time offset per distance bin (ns, ns^2),
+    from the table's exact sums; bins without light take the nearest lit bin's values
+    along s."""
+    photons = table.photons.sum(axis=2)  # (E, D)
+    safe = np.where(photons > 0, photons, 1.0)
+    mean = table.offset_sums[..., 0] / safe
+    variance = table.offset_sums[..., 1] / safe - mean**2
+    for row in range(photons.shape[0]):
+        lit = np.flatnonzero(photons[row] > 0)
         if lit.size == 0:
             continue
-        nearest = lit[np.argmin(np.abs(np.arange(counts.shape[1])[:, None] - lit), axis=1)]
+        nearest = lit[np.argmin(np.abs(np.arange(photons.shape[1])[:, None] - lit), axis=1)]
         mean[row], variance[row] = mean[row, nearest], variance[row, nearest]
     return mean, np.maximum(variance, 0.0)
 

@@ -27,8 +27,10 @@ b is softened to sqrt(b^2 + (r_j / 2)^2), so a track aimed at a sensor stays fin
 
 The arrival time of the light of node s is t0 + s / c + tau(s) + L n_g / c, with tau the
 emission-time offset of the model (mean and variance per s: the particle's slowing down
-and its secondaries); the sensor's direct component is moment-matched to the nodes'
-times and variances. All of it is the light of a sensor of relative efficiency 1 before
+and its secondaries); the direct light is ``DIRECT_COMPONENTS`` Gaussian components, each
+moment-matched to the times and variances of a fixed run of panels, so that a sensor that
+sees a long stretch of track gets the shape of its arrival times, not one wide Gaussian.
+All of it is the light of a sensor of relative efficiency 1 before
 its time offset. Lengths m, times ns.
 """
 
@@ -52,6 +54,9 @@ PANEL_BREAKS = np.array([-1.0, -0.6, -0.2, 0.2, 0.4, 0.5, 0.56, 0.62, 0.65, 0.67
                          0.94, 0.97, 1.0])
 #: Gauss-Legendre nodes per panel.
 NODES_PER_PANEL = 2
+#: Arrival-time components of the direct light: the panels (in the order of u) split
+#: into this many runs of equal length, each moment-matched to its nodes' times.
+DIRECT_COMPONENTS = 4
 
 
 def _panel_rule():
@@ -70,9 +75,10 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
         emission: the track's ``EmissionSlice`` (its energy's emission model).
 
     Returns:
-        (charge (N,) p.e. of sensors of efficiency 1, mean arrival time (N,) ns,
-        variance of the arrival times (N,) ns^2); a sensor without light gets the time
-        of light from the track start and variance 0.
+        (charge (N, C) p.e. of sensors of efficiency 1, mean arrival times (N, C) ns,
+        variances of the arrival times (N, C) ns^2) of C = ``DIRECT_COMPONENTS``
+        components; a component without light gets the time of light from the track
+        start and variance 0.
     """
     dtype = sensors.positions.dtype
     offset = sensors.positions - position  # (N, 3)
@@ -127,10 +133,17 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
     reference = time + travel_time(jnp.sqrt(jnp.sum(offset * offset, axis=-1)), params)
     arrival = time + s / SPEED_OF_LIGHT + offset_mean + travel_time(length, params) \
         - reference[:, None]
-    charge = jnp.sum(light, axis=-1)
+    # moment-matched components over DIRECT_COMPONENTS fixed runs of panels (in the
+    # order of u, i.e. along the track backwards)
+    groups = DIRECT_COMPONENTS
+    pad = (-light.shape[1]) % groups
+    grouped = [jnp.pad(x, ((0, 0), (0, pad))).reshape(x.shape[0], groups, -1)
+               for x in (light, arrival, jnp.broadcast_to(offset_variance, light.shape))]
+    light_g, arrival_g, variance_g = grouped
+    charge = jnp.sum(light_g, axis=-1)  # (N, C)
     lit = charge > 0
     safe = where(lit, charge, 1.0)
-    mean = jnp.sum(light * arrival, axis=-1) / safe
-    second = jnp.sum(light * (arrival * arrival + offset_variance), axis=-1) / safe
+    mean = jnp.sum(light_g * arrival_g, axis=-1) / safe
+    second = jnp.sum(light_g * (arrival_g * arrival_g + variance_g), axis=-1) / safe
     variance = where(lit, jnp.maximum(second - mean * mean, 0.0), 0.0)
-    return charge, reference + where(lit, mean, 0.0), variance
+    return charge, reference[:, None] + where(lit, mean, 0.0), variance

@@ -5,9 +5,10 @@ The track's energy selects its emission model (``photonflow.emission``: the ship
 spline model of its particle in the detector's medium); the direct light comes by
 quadrature in the angle to the track (``track_direct``), the indirect light (scattered
 and reflected, by bounce order) from the weighted rays of ``indirect.py`` leaving the
-track (``track_rays.TrackEmitter``). The light is a mixture of 1 + n_bounces arrival-time
-components per sensor as for point sources (component 0 direct, moment-matched to the
-quadrature nodes' times); the sensor response (``response.expected_response``) then
+track (``track_rays.TrackEmitter``). The light is a mixture of C + n_bounces arrival-time
+components per sensor: C for the direct light (``track_direct.DIRECT_COMPONENTS``, each
+moment-matched to a run of the quadrature's nodes), then one per bounce order as for
+point sources; the sensor response (``response.expected_response``) then
 applies efficiencies, offsets and the transit-time spread. Lengths m, times ns,
 energies MeV.
 """
@@ -32,8 +33,9 @@ from .track_rays import TrackEmitter
 def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, spectral,
                        key=None, *, shape, config):
     """The ``SensorLight`` of one track (a ``Track`` of one particle, leaves of the
-    computation's dtype): (N, 1 + n_bounces) p.e. of sensors of efficiency 1 (direct,
-    then by the order of the last vertex), with mean arrival times and variances (ns,
+    computation's dtype): (N, C + n_bounces) p.e. of sensors of efficiency 1 (C direct
+    components, ``track_direct.DIRECT_COMPONENTS``, then by the order of the last
+    vertex), with mean arrival times and variances (ns,
     ns^2). ``spectral``: the sensor's mean relative spectral response over the emitted
     spectrum (``cherenkov_spectral_factor``), which scales the QE at the reference
     wavelength; ``key`` fixes the rays (None: ``jax.random.key(0)``); ``shape`` and
@@ -44,16 +46,19 @@ def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, s
     direction = track.direction / jnp.linalg.norm(track.direction)
     charge, mean, variance = track_direct_light(sensors, params, track.position, direction,
                                                 track.time, emission)
+    total = jnp.sum(charge, axis=1)
+    reference = jnp.sum(charge * mean, axis=1) / where(total > 0, total, 1.0)
+    reference = where(total > 0, reference, mean[:, 0])
     emitter = TrackEmitter(track.position, direction, track.time, emission)
-    indirect = indirect_light_jit(sensors, params, emitter, mean, key, shape=shape,
+    indirect = indirect_light_jit(sensors, params, emitter, reference, key, shape=shape,
                                   config=config)
-    charges = jnp.concatenate([charge[None], indirect.charge], axis=0).T  # (N, K)
-    means = jnp.concatenate([mean[None], indirect.time_mean], axis=0).T
-    variances = jnp.concatenate([variance[None], indirect.time_variance], axis=0).T
+    charges = jnp.concatenate([charge, indirect.charge.T], axis=1)  # (N, C + n_bounces)
+    means = jnp.concatenate([mean, indirect.time_mean.T], axis=1)
+    variances = jnp.concatenate([variance, indirect.time_variance.T], axis=1)
     has_light = charges > 0
     return SensorLight(
         charge=charges,
-        time_mean=where(has_light, means, mean[:, None]),
+        time_mean=where(has_light, means, reference[:, None]),
         time_variance=where(has_light, variances, 0.0),
         residual_weight=indirect.residual_weight,
         window=tuple(float(x) for x in config.window),
