@@ -317,12 +317,19 @@ def check_bundle(photons, detector: Detector):
     off_unit = np.abs(np.linalg.norm(direction, axis=-1) - 1.0) > DIRECTION_TOLERANCE
     if off_unit.any():
         raise ConfigError(f"photons.direction: {int(off_unit.sum())} not unit vectors")
-    outside = np.asarray(detector.shape.distance_to_wall(position)) < 0
+    outside = ~inside_detector(detector, position)
     if outside.any():
         raise ConfigError(
             f"photons.position: {int(outside.sum())} outside the {detector.shape.describe()}"
         )
     return position, direction, time
+
+
+def inside_detector(detector: Detector, position) -> np.ndarray:
+    """(M,) bool: the points (M, 3) m lie inside the detector or on its wall (the one
+    test of a bundle's photons, made on float64 positions)."""
+    position = np.asarray(position, np.float64)
+    return np.asarray(detector.shape.distance_to_wall(position)) >= 0
 
 
 def _padded(array: np.ndarray, start: int, batch: int, fill, dtype) -> jax.Array:

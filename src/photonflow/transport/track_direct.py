@@ -65,7 +65,8 @@ def _panel_rule():
     return 0.5 * (nodes + 1.0), 0.5 * weights
 
 
-def track_direct_light(sensors: Sensors, params, position, direction, time, emission):
+def track_direct_light(sensors: Sensors, params, position, direction, time, emission,
+                       length=None):
     """Direct light of one track at every sensor (module docstring).
 
     Args:
@@ -73,6 +74,9 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
         params: detector parameters (attenuation lengths m, QE, acceptance, group index).
         position: (3,) track start, m. direction: (3,) unit vector. time: start, ns.
         emission: the track's ``EmissionSlice`` (its energy's emission model).
+        length: light is emitted only for s <= length (m; the distance to the wall along
+            the track: light made beyond the wall never enters the detector); None:
+            the whole extent.
 
     Returns:
         (charge (N, C) p.e. of sensors of efficiency 1, mean arrival times (N, C) ns,
@@ -86,7 +90,7 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
     across2 = jnp.maximum(jnp.sum(offset * offset, axis=-1) - along * along, 0.0)
     soft = 0.5 * sensors.radius
     across = jnp.sqrt(across2 + soft * soft)
-    extent = emission.extent
+    extent = emission.extent if length is None else jnp.minimum(emission.extent, length)
     u_start = along / jnp.sqrt(along * along + across * across)
     beyond = along - extent
     u_end = beyond / jnp.sqrt(beyond * beyond + across * across)
@@ -95,7 +99,7 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
     # which the sensor sees the model's knots along the track, sorted per sensor
     fixed = jnp.clip(jnp.asarray(PANEL_BREAKS, dtype)[None, :], u_end[:, None],
                      u_start[:, None])
-    knots_s = emission.fraction * extent  # (D,)
+    knots_s = jnp.minimum(emission.fraction * emission.extent, extent)  # (D,)
     ahead = along[:, None] - knots_s[None, :]
     seen = ahead / jnp.sqrt(ahead * ahead + (across * across)[:, None])
     ends = jnp.sort(jnp.concatenate([fixed, seen], axis=1), axis=1)  # (N, P + D + ...)

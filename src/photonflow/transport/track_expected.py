@@ -44,12 +44,13 @@ def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, s
     emission = model.at(track.energy)
     params = params.replace(quantum_efficiency=params.quantum_efficiency * spectral)
     direction = track.direction / jnp.linalg.norm(track.direction)
+    length = _inside_length(shape, track.position, direction)
     charge, mean, variance = track_direct_light(sensors, params, track.position, direction,
-                                                track.time, emission)
+                                                track.time, emission, length)
     total = jnp.sum(charge, axis=1)
     reference = jnp.sum(charge * mean, axis=1) / where(total > 0, total, 1.0)
     reference = where(total > 0, reference, mean[:, 0])
-    emitter = TrackEmitter(track.position, direction, track.time, emission)
+    emitter = TrackEmitter(track.position, direction, track.time, emission, length)
     indirect = indirect_light_jit(sensors, params, emitter, reference, key, shape=shape,
                                   config=config)
     charges = jnp.concatenate([charge, indirect.charge.T], axis=1)  # (N, C + n_bounces)
@@ -63,6 +64,15 @@ def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, s
         residual_weight=indirect.residual_weight,
         window=tuple(float(x) for x in config.window),
     )
+
+
+def _inside_length(shape, position, direction):
+    """Distance (m) from the track's start to the wall along its direction (a large
+    number in an open medium)."""
+    if not shape.has_walls:
+        return jnp.asarray(1e9, position.dtype)
+    exit_distance = shape.ray_exit(position[None], direction[None])[0]
+    return jnp.where(jnp.isfinite(exit_distance), jnp.maximum(exit_distance, 0.0), 1e9)
 
 
 @functools.partial(jax.jit, static_argnames=("shape", "config"))

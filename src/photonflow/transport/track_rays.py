@@ -38,6 +38,7 @@ class TrackEmitter:
     Attributes:
         position: (3,) start, m. direction: (3,) unit vector. time: start, ns.
         emission: the track's ``EmissionSlice`` (its energy's emission model).
+        length: light is emitted only for s <= length, m (the distance to the wall).
         mirror_quadrature: False (static): no first-order mirror quadrature.
     """
 
@@ -45,6 +46,7 @@ class TrackEmitter:
     direction: jax.Array
     time: jax.Array
     emission: EmissionSlice
+    length: jax.Array
     mirror_quadrature: bool = static_field(default=False)
 
     def leaving(self, key, count: int, dtype) -> dict:
@@ -65,7 +67,7 @@ class TrackEmitter:
         s = x * extent
         proposal = q_x * q_cos
         weight = emission.density(s, cos) * extent / jnp.where(proposal > 0, proposal, 1.0)
-        weight = jnp.where(proposal > 0, weight, 0.0) / count
+        weight = jnp.where((proposal > 0) & (s <= self.length), weight, 0.0) / count
         origins = self.position + s[:, None] * self.direction
         directions = deflect(jnp.broadcast_to(self.direction, (count, 3)), cos,
                              2.0 * math.pi * u[1])

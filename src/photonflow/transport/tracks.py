@@ -26,7 +26,7 @@ from ..io.events import Truth
 from ..medium import MEDIA
 from ..params import Params
 from ..photosensors import SensorModel, peak_response, sensor_model, spectral_keep_probability
-from .sampled import check_seed
+from .sampled import check_seed, inside_detector
 
 
 class PhotonBundle(NamedTuple):
@@ -92,7 +92,7 @@ def track_photons(
     wavelength for ``light.sensor``."""
     generator_seed, thinning_seed, _ = event_seeds(seed, index)
     photons = generate(track, generator_seed, medium=light.medium, settings=light.settings)
-    inside = np.asarray(detector.shape.distance_to_wall(np.asarray(photons.position))) >= 0
+    inside = inside_detector(detector, photons.position)
     keep_probability = spectral_keep_probability(light.sensor, photons.wavelength)
     kept = inside & (np.random.default_rng(thinning_seed).random(len(photons)) < keep_probability)
     return PhotonBundle(photons.position[kept], photons.direction[kept], photons.time[kept])
