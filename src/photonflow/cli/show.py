@@ -54,8 +54,12 @@ def display(
     event: Annotated[int, typer.Option("--event", "-e", help="Event index (0-based).")] = 0,
     out: Annotated[Path | None, typer.Option(
         "--out", "-o", help="Picture to write; default FILE_event<N>.png.")] = None,
+    predicted: Annotated[bool, typer.Option(
+        "--predicted", help="Draw a track event against its expected-mode prediction"
+                            " (from the stored truth and parameters).")] = False,
 ) -> None:
-    """Draw one event: charge and first-hit time of every sensor on the wall map."""
+    """Draw one event: charge and first-hit time of every sensor on the wall map, or with
+    --predicted the observed and predicted charge, residuals and time residuals."""
     from ..errors import EventFileError
     from ..io import read_events
     from ..viz import plot_event
@@ -70,5 +74,27 @@ def display(
             raise EventFileError(f"{path}: --event = {event}: the file holds {held}")
         record = events[event]
         target = out if out is not None else path.with_name(f"{path.stem}_event{event}.png")
-        plot_event(events.detector, record, target)
+        if predicted:
+            _plot_predicted(path, event, events.detector, events.params, record, target)
+        else:
+            plot_event(events.detector, record, target)
     console().print(f"wrote {target} ({record.n_hits} hit sensors)", highlight=False)
+
+
+def _plot_predicted(path, index, detector, params, record, target) -> None:
+    """``viz.plot_prediction`` of a track event against ``expected`` of its truth."""
+    from ..errors import EventFileError
+    from ..generator import Track
+    from ..response.spe import single_pe_moments
+    from ..transport import expected
+    from ..viz.prediction_display import plot_prediction
+
+    truth = record.truth
+    if truth is None or truth.source_kind != "track":
+        kind = "no truth" if truth is None else f"truth of kind {truth.source_kind!r}"
+        raise EventFileError(f"{path}: --event = {index} has {kind}; --predicted needs a"
+                             " track event")
+    track = Track(truth.particle, truth.position, truth.direction, truth.energy, truth.time)
+    prediction = expected(detector, params, track)
+    spe_mean = float(single_pe_moments(params.spe_width)[0])
+    plot_prediction(detector, record, prediction, target, spe_mean=spe_mean)
