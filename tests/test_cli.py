@@ -104,6 +104,11 @@ def test_demo_writes_the_geometry_pictures(tmp_path):
         assert len(events) == 3 and events.detector.name == "SK"
         assert events[0].truth.source_kind == "isotropic" and events[0].n_hits > 1000
     assert "optics calibration" not in result.stdout  # --skip-fit leaves the fit out
+    # the tracks: a muon and an electron, each drawn against its prediction
+    for index in range(2):
+        assert_png(tmp_path / "out" / f"track_event{index}.png")
+    with photonflow.read_events(tmp_path / "out" / "track_events.h5") as events:
+        assert [event.truth.particle for event in events] == ["mu-", "e-"]
 
 
 def test_readme_starts_with_set_up_and_its_preset_table_matches_the_presets():
