@@ -16,8 +16,9 @@ from ..generator.settings import GeneratorSettings
 from ..numerics import default_float_dtype
 from .spline import SplineEmission, spline_emission
 
-#: Particles whose light is modelled with another's table (the same light within the
-#: tables' errors is to be measured; docs/generator.md).
+#: Particles whose light is modelled with another's table: mu+ as mu- (the same light
+#: within the tables' errors), e+ as e- (an approximation: e+ gives ~2 % more light at
+#: 20 MeV from its annihilation photons; docs/tracks.md).
 SAME_LIGHT = {"mu+": "mu-", "e+": "e-"}
 
 
