@@ -156,7 +156,10 @@ def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
     cast = functools.partial(strict_array, dtype=dtype)
     sensors = sensors_for(detector, dtype, grid)
     medium = detector_medium(detector)
-    spectral = cherenkov_spectral_factor(principal_sensor_model(detector), medium)
+
+    @functools.cache
+    def spectral() -> float:  # only tracks need it (and a known sensor model)
+        return cherenkov_spectral_factor(principal_sensor_model(detector), medium)
 
     def predict(params: Params, source, key=None) -> Prediction:
         """Expected p.e. and time mixture per sensor (see ``expected``); no checks."""
@@ -164,7 +167,7 @@ def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
             model = emission_model(source.particle, medium, dtype)
             return track_expected_jit(
                 sensors, jax.tree.map(cast, params), jax.tree.map(cast, source), model,
-                cast(spectral), key, shape=detector.shape, config=config,
+                cast(spectral()), key, shape=detector.shape, config=config,
             )
         return expected_jit(
             sensors, jax.tree.map(cast, params), jax.tree.map(cast, source), key,
