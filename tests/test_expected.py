@@ -216,7 +216,8 @@ def test_no_recompilation_when_values_change():
     with jax.enable_x64(True):  # float64: the transport compiled for the tests above
         params = scattering_params(detector)
         source = IsotropicSource(position=[0.1, 0.0, 0.0], n_photons=1e5)
-        expected(detector, params, source, config=SMALL)
+        # warm up with a key as below (None and a key are different argument trees)
+        expected(detector, params, source, config=SMALL, key=jax.random.key(7))
         size = expected_jit._cache_size()
         for k in range(3):
             changed = params.replace(
