@@ -78,6 +78,16 @@ def test_concrete_batches_are_checked_by_index():
         Track("e-", np.zeros((3, 3)), directions, np.ones(3))
 
 
+def test_tracks_pickle_and_copy():
+    """Tracks go to worker processes (``simulate --workers``) and get copied."""
+    import copy
+    import pickle
+
+    track = Track("e-", [1.0, 2.0, 3.0], [0.0, 0.6, 0.8], 250.0, 4.0)
+    assert pickle.loads(pickle.dumps(track)) == track
+    assert copy.deepcopy(track) == track and copy.copy(track) == track
+
+
 def test_tracks_are_immutable_and_keep_float64_values():
     track = Track("mu-", [0.1, 0.2, 0.3], [0, 0, 1], 1000.0)
     assert track.position.dtype == np.float64 and not track.position.flags.writeable

@@ -73,6 +73,10 @@ class Track:
     def __setattr__(self, name, value):
         raise AttributeError(f"Track is immutable: use Track.replace({name}=...)")
 
+    def __reduce__(self):
+        """Pickle and copy by the fields (already checked), not by attribute setting."""
+        return _rebuild, (self.particle, [getattr(self, name) for name in _LEAVES])
+
     def replace(self, **changes) -> Track:
         """A copy with some fields changed (checked like the constructor's)."""
         values = {name: getattr(self, name) for name in ("particle", *_LEAVES)}
