@@ -120,3 +120,32 @@ def test_tables_build_command(tmp_path):
         assert failed.exit_code == 2
         assert failed.output.count("error:") == 1
         assert not bad.exists()
+
+
+def test_kill_stops_a_build_within_an_energy_and_keeps_the_finished_ones(tmp_path):
+    """``kill`` (SIGTERM) during a long energy ends ``photonflow tables build`` within
+    seconds with exit code 130; the energies written before stay in the file, and the
+    same command resumes from them."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "e.h5"
+    command = [sys.executable, "-m", "photonflow", "tables", "build", "--particle", "e-",
+               "--energies", "1,3000", "--per-energy", "1000", "--yield-scale", "0.05",
+               "--out", str(out)]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                               env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    deadline = time.monotonic() + 240
+    while not out.exists() and time.monotonic() < deadline and process.poll() is None:
+        time.sleep(0.5)
+    assert out.exists(), "the first energy was never written"
+    time.sleep(2.0)  # well inside the second energy (1,000 electrons of 3 GeV, minutes)
+    process.send_signal(signal.SIGTERM)
+    began = time.monotonic()
+    code = process.wait(timeout=60)
+    assert code == 130 and time.monotonic() - began < 10
+    table, completed = tables._read(out)
+    assert completed == [0] and table.particles[0] == 1000

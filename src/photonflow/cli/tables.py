@@ -43,15 +43,18 @@ def tables_build(
     from ..errors import ConfigError
     from ..generator import GeneratorSettings
     from ..generator.emission_tables import DEFAULT_ENERGIES, build_table
+    from ..interrupts import terminate_as_interrupt
 
     grid = DEFAULT_ENERGIES if energies is None else _parse_floats(energies, "--energies")
     check_output_file(out, "--out")
     try:
-        table = build_table(
-            particle, grid, per_energy, seed=seed, medium=medium,
-            settings=GeneratorSettings(yield_scale=yield_scale), resume=out, progress=True,
-            target_error=target_error, max_per_energy=max_per_energy,
-        )
+        with terminate_as_interrupt() as interrupts:
+            table = build_table(
+                particle, grid, per_energy, seed=seed, medium=medium,
+                settings=GeneratorSettings(yield_scale=yield_scale), resume=out,
+                progress=True, target_error=target_error, max_per_energy=max_per_energy,
+                check=interrupts.check,
+            )
     except OSError as error:
         raise ConfigError(f"--out = {str(out)!r}: cannot write ({error.strerror or error})"
                           ) from None

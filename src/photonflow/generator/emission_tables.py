@@ -131,12 +131,13 @@ ROW_FIELDS = ("distance_edges", "photons", "time_offsets", "offset_sums", "total
 
 
 def _energy_row(particle, energy, per_energy, seed, medium, settings, edges,
-                target_error=None, max_per_energy=None):
+                target_error=None, max_per_energy=None, check=None):
     """Histograms, moments and errors of the particles at one energy (``ROW_FIELDS``).
 
     Particles come in batches of ``per_energy`` (their seeds the successive children of
     the ``SeedSequence`` ``seed``); without ``target_error`` one batch, else batches until
     the relative error of the yield is below it, or ``max_per_energy`` particles.
+    ``check`` (if given) is called after every particle (e.g. to honour an interrupt).
     """
     distance_edges, cos_edges, time_edges = edges
     if distance_edges is None:
@@ -164,6 +165,8 @@ def _energy_row(particle, energy, per_energy, seed, medium, settings, edges,
                                                   weights=power)[0] / scale
             yields.append(len(event) / scale)
             lengths.append(float(event.tracks.length[0]))
+            if check is not None:
+                check()
         n = len(yields)
         mean_yield = float(np.mean(yields))
         yield_error = float(np.std(yields, ddof=1) / np.sqrt(n)) if n > 1 else np.inf
@@ -190,6 +193,7 @@ def build_table(
     progress: bool = False,
     target_error: float | None = None,
     max_per_energy: int | None = None,
+    check=None,
 ) -> EmissionTable:
     """Generate particles at every energy and tabulate their light.
 
@@ -211,6 +215,8 @@ def build_table(
             relative statistical error of the yield is below it (e.g. 0.002), or
             ``max_per_energy`` particles (default 100 x ``per_energy``); the angular
             profile's error is recorded (``EmissionTable.profile_error``).
+        check: called after every particle (e.g. ``Interrupts.check``, so that Ctrl-C or
+            ``kill`` stops a long energy; the energies already written are kept).
 
     Returns:
         The ``EmissionTable``.
@@ -245,7 +251,7 @@ def build_table(
     rows = [i for i in range(len(energies)) if i not in done]
     for i in with_progress(rows, f"{particle} table", show=progress):
         row = _energy_row(particle, energies[i], per_energy, children[i], medium, settings,
-                          edges, target_error, max_per_energy)
+                          edges, target_error, max_per_energy, check)
         for field, value in zip(ROW_FIELDS, row, strict=True):
             getattr(table, field)[i] = value
         done.add(i)
