@@ -70,6 +70,16 @@ class EmissionSlice:
         root = _bicubic(self.fraction, self.cos, self.root, x, cos)
         return jnp.where((x >= 0.0) & (x <= 1.0), self.scale * root * root, 0.0)
 
+    def fraction_profile(self):
+        """(D,) light per unit x at the x knots (the cos knots' cells summed), before
+        ``scale``."""
+        return jnp.sum(self.root[0] ** 2 * _cell_widths(self.cos), axis=1)
+
+    def cos_profile(self):
+        """(A,) light per unit cos at the cos knots (the x knots' cells summed), before
+        ``scale``."""
+        return jnp.sum(self.root[0] ** 2 * _cell_widths(self.fraction)[:, None], axis=0)
+
     def time_moments(self, s):
         """(mean ns, variance ns^2) of the emission-time offset t - s / c at s (m)."""
         x = s / self.extent

@@ -65,6 +65,12 @@ def _panel_rule():
     return 0.5 * (nodes + 1.0), 0.5 * weights
 
 
+def _seen_cos(ahead, across):
+    """cos(angle to the track) under which a sensor ``ahead`` m along and ``across`` m
+    off a point of the track sees it."""
+    return ahead / jnp.sqrt(ahead * ahead + across * across)
+
+
 def track_direct_light(sensors: Sensors, params, position, direction, time, emission,
                        length=None):
     """Direct light of one track at every sensor (module docstring).
@@ -91,17 +97,15 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
     soft = 0.5 * sensors.radius
     across = jnp.sqrt(across2 + soft * soft)
     extent = emission.extent if length is None else jnp.minimum(emission.extent, length)
-    u_start = along / jnp.sqrt(along * along + across * across)
-    beyond = along - extent
-    u_end = beyond / jnp.sqrt(beyond * beyond + across * across)
+    u_start = _seen_cos(along, across)
+    u_end = _seen_cos(along - extent, across)
 
     # panel ends: the fixed breaks (clipped to the sensor's range) and the cosines under
     # which the sensor sees the model's knots along the track, sorted per sensor
     fixed = jnp.clip(jnp.asarray(PANEL_BREAKS, dtype)[None, :], u_end[:, None],
                      u_start[:, None])
     knots_s = jnp.minimum(emission.fraction * emission.extent, extent)  # (D,)
-    ahead = along[:, None] - knots_s[None, :]
-    seen = ahead / jnp.sqrt(ahead * ahead + (across * across)[:, None])
+    seen = _seen_cos(along[:, None] - knots_s[None, :], across[:, None])
     ends = jnp.sort(jnp.concatenate([fixed, seen], axis=1), axis=1)  # (N, P + D + ...)
     low, high = ends[:, :-1], ends[:, 1:]
     unit_nodes, unit_weights = (jnp.asarray(x, dtype) for x in _panel_rule())

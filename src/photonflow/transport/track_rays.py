@@ -57,9 +57,8 @@ class TrackEmitter:
         v = jax.random.uniform(distance_key, (count,), dtype)
         emission = self.emission
         fixed = jax.lax.stop_gradient(emission)
-        x_grid, x_pdf = _padded_density(fixed.fraction, 0.0, 1.0,
-                                        _x_marginal(fixed))
-        c_grid, c_profile = _padded_density(fixed.cos, -1.0, 1.0, _cos_marginal(fixed))
+        x_grid, x_pdf = _padded_density(fixed.fraction, 0.0, 1.0, fixed.fraction_profile())
+        c_grid, c_profile = _padded_density(fixed.cos, -1.0, 1.0, fixed.cos_profile())
         c_pdf = (1.0 - UNIFORM_SHARE) * c_profile + UNIFORM_SHARE * 0.5
         x, q_x = _inverse_cdf(x_grid, x_pdf, v)
         cos, q_cos = _inverse_cdf(c_grid, c_pdf, u[0])
@@ -74,23 +73,6 @@ class TrackEmitter:
         offset, _ = emission.time_moments(s)
         time = self.time + s / SPEED_OF_LIGHT + offset
         return {"origins": origins, "directions": directions, "weight": weight, "time": time}
-
-
-def _x_marginal(emission: EmissionSlice):
-    """Light per unit x at the x knots (summed over the cos knots' cells)."""
-    widths = _cell_widths(emission.cos)
-    return jnp.sum(emission.root[0] ** 2 * widths, axis=1)
-
-
-def _cos_marginal(emission: EmissionSlice):
-    """Light per unit cos at the cos knots (summed over the x knots' cells)."""
-    widths = _cell_widths(emission.fraction)
-    return jnp.sum(emission.root[0] ** 2 * widths[:, None], axis=0)
-
-
-def _cell_widths(knots):
-    gaps = knots[1:] - knots[:-1]
-    return 0.5 * (jnp.concatenate([gaps[:1], gaps]) + jnp.concatenate([gaps, gaps[-1:]]))
 
 
 def _padded_density(knots, low, high, values):
