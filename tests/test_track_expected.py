@@ -24,8 +24,9 @@ def toy():
 
 
 def _brute_force(sensors, params, emission, start, direction, index, points=200001):
-    """mu_j by trapezoids over 200,001 points of the track: rho(s, cos) / 2 pi x the disc
-    solid angle x QE x acceptance x attenuation, integrated in s."""
+    """mu_j by trapezoids over 200,001 points of the track: rho(s, cos) averaged over the
+    disc's footprint / 2 pi x the disc solid angle x QE x acceptance x attenuation,
+    integrated in s (the footprint's half-width from the unit vector e_theta)."""
     s = np.linspace(0.0, float(emission.extent), points)
     centre = np.asarray(sensors.positions[index], np.float64)
     normal = np.asarray(sensors.normals[index], np.float64)
@@ -36,7 +37,13 @@ def _brute_force(sensors, params, emission, start, direction, index, points=2000
     cos_in = -(to_sensor @ normal) / length
     reach = np.sqrt(length**2 + radius**2)
     omega = np.maximum(cos_in, 0.0) * 2 * np.pi * radius**2 / (reach * (reach + length))
-    density = np.asarray(emission.density(jnp.asarray(s), jnp.asarray(cos_track)))
+    sight = to_sensor / length[:, None]
+    e_theta = (cos_track[:, None] * sight - direction[None]) \
+        / np.sqrt(1.0 - cos_track**2)[:, None]
+    width = np.sqrt(1.0 - cos_track**2) * radius / reach \
+        * np.sqrt(np.maximum(1.0 - (e_theta @ normal) ** 2, 0.0))
+    density = np.asarray(emission.density(jnp.asarray(s), jnp.asarray(cos_track),
+                                          jnp.asarray(width)))
     acceptance = np.asarray(acceptance_at_cos(params.angular_acceptance, jnp.asarray(cos_in)))
     rate = float(interaction_rates(params)[3])
     integrand = density / (2 * np.pi) * omega * float(params.quantum_efficiency) * acceptance \

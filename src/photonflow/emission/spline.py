@@ -11,7 +11,15 @@ every energy and interpolates in energy without blurring) and interpolates
   the bin centres in (log E, x, cos); d^2N / ds dcos = g^2 / S(E), scaled so that it
   integrates to the yield;
 - the total yield per particle and the extent S in log E;
-- the mean and variance of the emission-time offset (t - s / c, ns) per (E, x).
+- the mean and variance of the emission-time offset (t - s / c, ns) per (E, x);
+- the density averaged over a sensor's angular footprint: a sensor disc seen from a
+  point of the track covers a range of cos around the cos of its centre, as wide as
+  the Cherenkov peak or wider (a 0.254 m disc at 16 m spans +-0.01 in cos, the peak
+  ~0.02), so the light it catches is the density averaged over that range, not the
+  density at its centre. The footprint's marginal in cos is a semicircle of half-width
+  w (``footprint_width``); the model keeps the density averaged over semicircles of
+  ``FOOTPRINT_WIDTHS`` (computed from the table's bins, exact for its piecewise-constant
+  histogram) and interpolates between them in log2(1 + w / w_0) (Catmull-Rom, C1).
 
 Along log E a natural cubic spline (C2) is linear in the node values, so one energy
 reduces the table to a weighted sum of its nodes (``energy_weights``), and the
@@ -21,7 +29,8 @@ bicubic Hermite patch. A node of zero light at the Cherenkov threshold (``thresh
 MeV) makes the light vanish smoothly there; energies are clamped to [threshold, the
 largest node] (documented: a traced energy beyond the table does not extrapolate).
 Written with ``interpax`` for the spline derivatives; the patch evaluation is here
-because it runs on precomputed derivatives combined per track.
+because it runs on precomputed derivatives combined per track (interpax evaluates one
+spline from its values; here a track's derivatives are a weighted sum of the nodes').
 """
 
 from __future__ import annotations
@@ -36,6 +45,11 @@ from ..generator.emission_tables import EmissionTable
 from ..numerics import default_float_dtype
 from ..pytree import pytree_dataclass, static_field
 
+#: Smallest nonzero footprint half-width w_0 (in cos) of the averaged densities; the
+#: widths are w_0 (2^k - 1), k = 0 ... 9: 0 (the density itself), 0.0025, ..., 1.28.
+FOOTPRINT_STEP = 0.0025
+FOOTPRINT_WIDTHS = FOOTPRINT_STEP * (2.0 ** np.arange(10) - 1.0)
+
 
 @pytree_dataclass
 class EmissionSlice:
@@ -44,8 +58,10 @@ class EmissionSlice:
     Attributes:
         fraction: (D,) knots in x (bin centres in [0, 1]).
         cos: (A,) knots in cos(angle to the initial direction).
-        root: (4, D, A) sqrt(d^2N / dx dcos) and its derivatives d/dx, d/dcos,
-            d^2/dx dcos at the knots (photons^(1/2) per particle).
+        root: (W, 4, D, A) sqrt(d^2N / dx dcos) averaged over a footprint of each of the
+            W ``FOOTPRINT_WIDTHS`` (the first: the density itself), and its
+            derivatives d/dx, d/dcos, d^2/dx dcos at the knots (photons^(1/2) per
+            particle).
         time_mean: (2, D) mean emission-time offset t - s / c (ns) and its d/dx.
         time_variance: (2, D) its variance (ns^2) and d/dx.
         extent: the light's extent S along the initial direction, m.
@@ -63,22 +79,30 @@ class EmissionSlice:
     scale: jax.Array
     total_yield: jax.Array
 
-    def density(self, s, cos):
+    def density(self, s, cos, width=None):
         """d^2N / ds dcos at (s m, cos), photons per particle per m per unit cos; 0
-        outside 0 <= s <= extent, the last knots' values beyond the cos knots."""
+        outside 0 <= s <= extent, the last knots' values beyond the cos knots.
+        ``width``: None, or the half-width in cos of a semicircle footprint (broadcasting
+        with s and cos) that the density is averaged over (module docstring)."""
         x = s / self.extent
-        root = _bicubic(self.fraction, self.cos, self.root, x, cos)
+        terms = _bicubic_terms(self.fraction, self.cos, x, cos)
+        if width is None:
+            root = _bicubic(self.root, terms, 0)
+        else:
+            root = 0.0
+            for weight, layer in _footprint_terms(width, self.root.shape[0]):
+                root = root + weight * _bicubic(self.root, terms, layer)
         return jnp.where((x >= 0.0) & (x <= 1.0), self.scale * root * root, 0.0)
 
     def fraction_profile(self):
         """(D,) light per unit x at the x knots (the cos knots' cells summed), before
         ``scale``."""
-        return jnp.sum(self.root[0] ** 2 * _cell_widths(self.cos), axis=1)
+        return jnp.sum(self.root[0, 0] ** 2 * _cell_widths(self.cos), axis=1)
 
     def cos_profile(self):
         """(A,) light per unit cos at the cos knots (the x knots' cells summed), before
         ``scale``."""
-        return jnp.sum(self.root[0] ** 2 * _cell_widths(self.fraction)[:, None], axis=0)
+        return jnp.sum(self.root[0, 0] ** 2 * _cell_widths(self.fraction)[:, None], axis=0)
 
     def time_moments(self, s):
         """(mean ns, variance ns^2) of the emission-time offset t - s / c at s (m)."""
@@ -97,7 +121,8 @@ class SplineEmission:
             Cherenkov threshold (a node of no light).
         fraction: (D,) knots in x = s / extent.
         cos: (A,) knots in cos.
-        root: (K, 4, D, A) per energy node: sqrt density and derivatives (``EmissionSlice``).
+        root: (K, W, 4, D, A) per energy node: sqrt densities and derivatives
+            (``EmissionSlice``).
         time_mean, time_variance: (K, 2, D) per node (``EmissionSlice``).
         extent: (K,) light extent per node, m.
         total_yield: (K,) photons per particle.
@@ -142,7 +167,7 @@ class SplineEmission:
         total_yield = jnp.maximum(combine(self.total_yield), 0.0)
         extent = combine(self.extent)
         cell = _cell_widths(self.fraction)[:, None] * _cell_widths(self.cos)[None, :]
-        knots_sum = jnp.sum(root[0] * root[0] * cell)
+        knots_sum = jnp.sum(root[0, 0] * root[0, 0] * cell)
         safe = jnp.where(knots_sum > 0, knots_sum, 1.0)
         return EmissionSlice(
             fraction=self.fraction,
@@ -188,14 +213,16 @@ def spline_emission(table: EmissionTable, threshold: float, dtype=None) -> Splin
     fraction = (np.arange(bins) + 0.5) / bins
     cos = 0.5 * (table.cos_edges[1:] + table.cos_edges[:-1])
     widths = np.outer(np.full(bins, 1.0 / bins), np.diff(table.cos_edges))
-    root = np.sqrt(np.maximum(table.photons, 0.0) / widths)  # (E, D, A)
-    root = np.concatenate([np.zeros_like(root[:1]), root])
+    density = np.maximum(table.photons, 0.0) / widths  # (E, D, A)
+    density = np.concatenate([np.zeros_like(density[:1]), density])
+    averaged = np.maximum(
+        np.einsum("wab,edb->ewda", _footprint_matrices(table.cos_edges), density), 0.0)
     dtype = default_float_dtype() if dtype is None else np.dtype(dtype)
-    fraction, cos, root = (np.asarray(x, dtype) for x in (fraction, cos, root))
+    fraction, cos, root = (np.asarray(x, dtype) for x in (fraction, cos, np.sqrt(averaged)))
     with jax.numpy_dtype_promotion("standard"):  # interpax mixes int and float
-        d_ds = np.asarray(interpax.approx_df(fraction, root, method="cubic2", axis=1))
-        d_dcos = np.asarray(interpax.approx_df(cos, root, method="cubic2", axis=2))
-        d2 = np.asarray(interpax.approx_df(cos, d_ds, method="cubic2", axis=2))
+        d_ds = np.asarray(interpax.approx_df(fraction, root, method="cubic2", axis=2))
+        d_dcos = np.asarray(interpax.approx_df(cos, root, method="cubic2", axis=3))
+        d2 = np.asarray(interpax.approx_df(cos, d_ds, method="cubic2", axis=3))
     mean, variance = _time_moments(table)
     mean = np.concatenate([mean[:1], mean])  # the threshold node emits nothing
     variance = np.concatenate([variance[:1], variance])
@@ -210,7 +237,7 @@ def spline_emission(table: EmissionTable, threshold: float, dtype=None) -> Splin
         log_energy=cast(np.log(np.concatenate([[threshold], energies]))),
         fraction=cast(fraction),
         cos=cast(cos),
-        root=cast(np.stack([root, d_ds, d_dcos, d2], axis=1)),
+        root=cast(np.stack([root, d_ds, d_dcos, d2], axis=2)),
         time_mean=cast(times[0]),
         time_variance=cast(times[1]),
         extent=cast(np.concatenate([extent[:1], extent])),
@@ -218,6 +245,35 @@ def spline_emission(table: EmissionTable, threshold: float, dtype=None) -> Splin
         particle=table.particle,
         medium=table.medium,
     )
+
+
+def _footprint_matrices(cos_edges) -> np.ndarray:
+    """(W, A, A) matrices M_w with (M_w rho)_j the average over a semicircle of half-width
+    ``FOOTPRINT_WIDTHS[w]`` centred on bin centre j of a density constant in each of the
+    A bins (``cos_edges``, (A + 1,)); zero beyond the edges. The first is the identity."""
+    edges = np.asarray(cos_edges, np.float64)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    matrices = [np.eye(centres.size)]
+    for width in FOOTPRINT_WIDTHS[1:]:
+        y = np.clip((edges[None, :] - centres[:, None]) / width, -1.0, 1.0)
+        cumulative = 0.5 + (y * np.sqrt(1.0 - y * y) + np.arcsin(y)) / np.pi  # semicircle CDF
+        matrices.append(np.diff(cumulative, axis=1))  # kernel mass in each bin
+    return np.stack(matrices)
+
+
+def _footprint_terms(width, layers: int):
+    """(weight, layer) pairs: Catmull-Rom interpolation between the ``layers`` footprint
+    widths in t = log2(1 + width / ``FOOTPRINT_STEP``) (C1 in the width; layers beyond
+    the ends repeat the end ones)."""
+    t = jnp.clip(jnp.log2(1.0 + jnp.maximum(width, 0.0) / FOOTPRINT_STEP), 0.0, layers - 1.0)
+    base = jnp.clip(jnp.floor(t), 0.0, layers - 2.0)
+    tau = t - base
+    k = base.astype(jnp.int32)
+    tau2, tau3 = tau * tau, tau * tau * tau
+    weights = (0.5 * (-tau3 + 2 * tau2 - tau), 0.5 * (3 * tau3 - 5 * tau2 + 2),
+               0.5 * (-3 * tau3 + 4 * tau2 + tau), 0.5 * (tau3 - tau2))
+    return [(weight, jnp.clip(k + shift, 0, layers - 1))
+            for weight, shift in zip(weights, (-1, 0, 1, 2), strict=True)]
 
 
 def _merge_distance_bins(table: EmissionTable, merge: int) -> EmissionTable:
@@ -284,24 +340,26 @@ def _cubic(knots, values, slopes, x):
     return h00 * values[i] + h10 * h * slopes[i] + h01 * values[i + 1] + h11 * h * slopes[i + 1]
 
 
-def _bicubic(x_knots, y_knots, table, x, y):
-    """Bicubic Hermite patch of ``table`` (4, X, Y): f, df/dx, df/dy, d2f/dxdy at (x, y)
-    (clamped to the knots)."""
+def _bicubic_terms(x_knots, y_knots, x, y):
+    """The 16 (weight, derivative index, x knot, y knot) terms of a bicubic Hermite patch
+    at (x, y) (clamped to the knots); derivative index 0..3: f, df/dx, df/dy, d2f/dxdy."""
     x = jnp.clip(x, x_knots[0], x_knots[-1])
     y = jnp.clip(y, y_knots[0], y_knots[-1])
     i, u, hx = _locate(x_knots, x)
     j, v, hy = _locate(y_knots, y)
     bx = _hermite(u)
     by = _hermite(v)
-    f, fx, fy, fxy = table
-    total = 0.0
     # (weight, knot, slope?) along x and y: h00 at i, h10 h at i, h01 at i+1, h11 h at i+1
-    x_terms = ((bx[0], i, False), (bx[1] * hx, i, True), (bx[2], i + 1, False),
-               (bx[3] * hx, i + 1, True))
-    y_terms = ((by[0], j, False), (by[1] * hy, j, True), (by[2], j + 1, False),
-               (by[3] * hy, j + 1, True))
-    for wx, ii, x_slope in x_terms:
-        for wy, jj, y_slope in y_terms:
-            source = (fxy if y_slope else fx) if x_slope else (fy if y_slope else f)
-            total = total + wx * wy * source[ii, jj]
+    x_terms = ((bx[0], i, 0), (bx[1] * hx, i, 1), (bx[2], i + 1, 0), (bx[3] * hx, i + 1, 1))
+    y_terms = ((by[0], j, 0), (by[1] * hy, j, 2), (by[2], j + 1, 0), (by[3] * hy, j + 1, 2))
+    return [(wx * wy, dx + dy, ii, jj)
+            for wx, ii, dx in x_terms for wy, jj, dy in y_terms]
+
+
+def _bicubic(table, terms, layer):
+    """The bicubic patch of ``table`` (W, 4, X, Y) at ``layer`` (an int or an index array
+    broadcasting with the points), summed over ``terms`` (``_bicubic_terms``)."""
+    total = 0.0
+    for weight, derivative, ii, jj in terms:
+        total = total + weight * table[layer, derivative, ii, jj]
     return total

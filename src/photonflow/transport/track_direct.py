@@ -14,7 +14,15 @@ cos(theta) = (a - s) / sqrt((a - s)^2 + b^2), a monotonic function of s, so
 with u0 (u1) the cosine seen from s = 0 (s = S), L the distance from the emission point
 to the disc centre, Omega_j = cos_in 2 pi r_j^2 / (R (R + L)) with R = sqrt(L^2 + r_j^2)
 (the on-axis disc solid angle tilted by the incidence cosine cos_in), A the angular
-acceptance. The integral runs in u because the Cherenkov peak is sharp in u. Its panels end at
+acceptance, and rho averaged over the disc's footprint in cos: seen from the emission
+point, the disc is an ellipse of semi-axes r_j / R and r_j cos_in / R, whose extent along
+the angle theta to the track is w_theta = (r_j / R) sqrt(1 - (e_theta . n_j)^2), and
+rho is averaged over a semicircle of half-width w = sin(theta) w_theta in cos
+(``EmissionSlice.density``'s ``width``; the catch of a Cherenkov peak narrower than the
+disc is the peak's light times the chord of the footprint it crosses). Near a sensor
+(a few of its radii) neither the footprint nor the disc's solid angle is small: the
+sensors seen nearest are split into sub-discs (``NEAR_SENSORS``). The integral runs in
+u because the Cherenkov peak is sharp in u. Its panels end at
 fixed cosines (``PANEL_BREAKS``, dense over the Cherenkov peaks) clipped to [u1, u0],
 and at the cosines under which the sensor sees the emission model's knots along the
 track (so no panel straddles a knot of the model's splines in s); sorted per sensor,
@@ -36,14 +44,16 @@ its time offset. Lengths m, times ns.
 
 from __future__ import annotations
 
+import functools
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..constants import SPEED_OF_LIGHT
 from ..geometry.sensor_arrays import Sensors
-from ..numerics import where
+from ..numerics import safe_sqrt, where
 from ..response.detection import acceptance_at_cos
 from .optics import interaction_rates, travel_time
 
@@ -54,6 +64,15 @@ PANEL_BREAKS = np.array([-1.0, -0.6, -0.2, 0.2, 0.4, 0.5, 0.56, 0.62, 0.65, 0.67
                          0.94, 0.97, 1.0])
 #: Gauss-Legendre nodes per panel.
 NODES_PER_PANEL = 2
+#: Sensors refined by sub-discs (the near field): a disc seen from a few of its radii
+#: away is not a point, nor is the Cherenkov ring straight across it, so the
+#: ``NEAR_SENSORS`` discs with the largest light-weighted angular radius r / L (above
+#: ``NEAR_FROM`` rad, fully from ``NEAR_FULL``) are split into equal-area sub-discs in
+#: ``SUB_DISC_RINGS`` rings around a centre one (19 for 2), each integrated as a disc.
+NEAR_SENSORS = 32
+NEAR_FROM = 0.04
+NEAR_FULL = 0.08
+SUB_DISC_RINGS = 2
 #: Arrival-time components of the direct light: the panels (in the order of u) split
 #: into this many runs of equal length, each moment-matched to its nodes' times.
 DIRECT_COMPONENTS = 4
@@ -90,16 +109,92 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
         components; a component without light gets the time of light from the track
         start and variance 0.
     """
-    dtype = sensors.positions.dtype
-    offset = sensors.positions - position  # (N, 3)
+    extent = emission.extent if length is None else jnp.minimum(emission.extent, length)
+    light = functools.partial(_disc_light, params=params, position=position,
+                              direction=direction, time=time, emission=emission,
+                              extent=extent)
+    charge, mean, variance, nearness = light(sensors.positions, sensors.normals,
+                                             sensors.radius)
+    near = min(NEAR_SENSORS, sensors.positions.shape[0] - 1)
+    if near <= 0:
+        return charge, mean, variance
+    index, blend = _near_field(nearness, near)
+    offsets, scale = _sub_disc_offsets(sensors.normals[index], sensors.radius[index])
+    sub = light((sensors.positions[index][:, None, :] + offsets).reshape(-1, 3),
+                jnp.repeat(sensors.normals[index], offsets.shape[1], axis=0),
+                jnp.repeat(sensors.radius[index] * scale, offsets.shape[1]))
+    parts = [x.reshape(near, offsets.shape[1], -1) for x in sub[:3]]
+    fine = _mixed(parts[0], parts[1], parts[2], axis=1)
+    weights = jnp.stack([1.0 - blend, blend], axis=1)[:, :, None]
+    mixed = _mixed(jnp.stack([charge[index], fine[0]], axis=1) * weights,
+                   jnp.stack([mean[index], fine[1]], axis=1),
+                   jnp.stack([variance[index], fine[2]], axis=1), axis=1)
+    mean_near = where(mixed[0] > 0, mixed[1], mean[index])
+    return (charge.at[index].set(mixed[0]), mean.at[index].set(mean_near),
+            variance.at[index].set(mixed[2]))
+
+
+def _near_field(nearness, count: int):
+    """(indices (count,), blend weights in [0, 1]) of the sensors refined by sub-discs:
+    the ``count`` largest ``nearness``; a sensor's weight rises smoothly from 0 at
+    max(``NEAR_FROM``, the next-largest nearness) to 1 at ``NEAR_FULL`` above that
+    (so a sensor leaving the selection has weight 0: the light stays continuous)."""
+    values, index = jax.lax.top_k(nearness, count + 1)
+    low = jnp.maximum(NEAR_FROM, values[-1])
+    x = jnp.clip((values[:-1] - low) / (NEAR_FULL - NEAR_FROM), 0.0, 1.0)
+    return index[:-1], x * x * (3.0 - 2.0 * x)
+
+
+def _sub_disc_offsets(normals, radius):
+    """Centres of the equal-area sub-discs of each disc ((K, S, 3) offsets m from its
+    centre, in its plane) and the sub-discs' radius over the disc's: a centre sub-disc
+    and rings of 6, 12, ... (``SUB_DISC_RINGS`` rings)."""
+    count = 1 + 3 * SUB_DISC_RINGS * (SUB_DISC_RINGS + 1)
+    radii, angles = [0.0], [0.0]
+    inner = 1.0
+    for ring in range(1, SUB_DISC_RINGS + 1):
+        outer = inner + 6 * ring
+        radii += [math.sqrt(0.5 * (inner + outer) / count)] * (6 * ring)
+        angles += [2 * math.pi * (k + 0.5 * (ring % 2)) / (6 * ring) for k in range(6 * ring)]
+        inner = outer
+    dtype = normals.dtype
+    helper = jnp.where(jnp.abs(normals[:, 2:3]) < 0.9, jnp.array([0.0, 0.0, 1.0], dtype),
+                       jnp.array([1.0, 0.0, 0.0], dtype))
+    first = jnp.cross(normals, helper)
+    first = first / jnp.linalg.norm(first, axis=1, keepdims=True)
+    second = jnp.cross(normals, first)
+    radii = jnp.asarray(radii, dtype)[None, :, None] * radius[:, None, None]
+    angles = jnp.asarray(angles, dtype)[None, :, None]
+    offsets = radii * (jnp.cos(angles) * first[:, None] + jnp.sin(angles) * second[:, None])
+    return offsets, 1.0 / math.sqrt(count)
+
+
+def _mixed(charge, mean, variance, axis):
+    """Moments of the mixture of components (charge, mean, variance) along ``axis``:
+    (charge summed, light-weighted mean, variance about it); a mixture without light
+    gets mean 0 and variance 0."""
+    total = jnp.sum(charge, axis=axis)
+    lit = total > 0
+    safe = where(lit, total, 1.0)
+    first = jnp.sum(charge * mean, axis=axis) / safe
+    second = jnp.sum(charge * (variance + mean * mean), axis=axis) / safe
+    return total, where(lit, first, 0.0), where(lit, jnp.maximum(second - first * first, 0.0),
+                                                 0.0)
+
+
+def _disc_light(positions, normals, radius, *, params, position, direction, time, emission,
+                extent):
+    """``track_direct_light`` of the discs (centres (N, 3) m, inward normals (N, 3), radii
+    (N,) m) without the near-field refinement, and each disc's nearness: its light-
+    weighted angular radius r / L seen from the track (rad)."""
+    dtype = positions.dtype
+    offset = positions - position  # (N, 3)
     along = offset @ direction
     across2 = jnp.maximum(jnp.sum(offset * offset, axis=-1) - along * along, 0.0)
-    soft = 0.5 * sensors.radius
+    soft = 0.5 * radius
     across = jnp.sqrt(across2 + soft * soft)
-    extent = emission.extent if length is None else jnp.minimum(emission.extent, length)
     u_start = _seen_cos(along, across)
     u_end = _seen_cos(along - extent, across)
-
     # panel ends: the fixed breaks (clipped to the sensor's range) and the cosines under
     # which the sensor sees the model's knots along the track, sorted per sensor
     fixed = jnp.clip(jnp.asarray(PANEL_BREAKS, dtype)[None, :], u_end[:, None],
@@ -119,13 +214,18 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
     s = jnp.clip(along[:, None] - across_ * u / sine, 0.0, extent)
     jacobian = across_ / (sin2 * sine)
     emitted = position + s[..., None] * direction  # (N, M, 3)
-    to_sensor = sensors.positions[:, None, :] - emitted
+    to_sensor = positions[:, None, :] - emitted
     length = jnp.sqrt(jnp.sum(to_sensor * to_sensor, axis=-1) + soft[:, None] ** 2)
-    cos_in = -jnp.sum(to_sensor * sensors.normals[:, None, :], axis=-1) / length
-    radius2 = (sensors.radius * sensors.radius)[:, None]
+    cos_in = -jnp.sum(to_sensor * normals[:, None, :], axis=-1) / length
+    radius2 = (radius * radius)[:, None]
     reach = jnp.sqrt(length * length + radius2)
     solid_angle = jnp.maximum(cos_in, 0.0) * 2.0 * math.pi * radius2 / (reach * (reach + length))
-    density = emission.density(s, u)
+    # the disc spans a range of cos around u: average the density over its footprint
+    # (semicircle of half-width sin(theta) x its angular half-size along theta)
+    facing = (direction @ normals.T)[:, None]  # d . n
+    density = emission.density(
+        s, u, width=jnp.sqrt(radius2) / reach * safe_sqrt(sin2 - (u * cos_in + facing) ** 2)
+    )
     light = (
         weight
         * density
@@ -147,11 +247,7 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
     pad = (-light.shape[1]) % groups
     grouped = [jnp.pad(x, ((0, 0), (0, pad))).reshape(x.shape[0], groups, -1)
                for x in (light, arrival, jnp.broadcast_to(offset_variance, light.shape))]
-    light_g, arrival_g, variance_g = grouped
-    charge = jnp.sum(light_g, axis=-1)  # (N, C)
-    lit = charge > 0
-    safe = where(lit, charge, 1.0)
-    mean = jnp.sum(light_g * arrival_g, axis=-1) / safe
-    second = jnp.sum(light_g * (arrival_g * arrival_g + variance_g), axis=-1) / safe
-    variance = where(lit, jnp.maximum(second - mean * mean, 0.0), 0.0)
-    return charge, reference[:, None] + where(lit, mean, 0.0), variance
+    charge, mean, variance = _mixed(*grouped, axis=-1)  # (N, C) each
+    total = jnp.sum(light, axis=1)
+    nearness = jnp.sum(light * jnp.sqrt(radius2) / reach, axis=1) / where(total > 0, total, 1.0)
+    return charge, reference[:, None] + mean, variance, nearness
