@@ -63,6 +63,8 @@ def main() -> None:
         pulls = (mean - expected)[lit] / np.sqrt(error[lit] ** 2 + (floor * expected[lit]) ** 2
                                                  + 1e-12)
         print(f"floor {floor:.0%}: chi2/ndf {np.mean(pulls ** 2):.2f} over {lit.sum()} sensors")
+    pull = np.zeros_like(mean)
+    pull[lit] = pulls
     offset = detector.sensor_positions - args.start
     cosine = offset @ direction / np.linalg.norm(offset, axis=1)
     edges = np.linspace(-1.0, 1.0, 41)
@@ -71,7 +73,8 @@ def main() -> None:
         chosen = band == b
         if chosen.any() and mean[chosen].sum() > 0:
             print(f"cos [{edges[b - 1]:+.2f}, {edges[b]:+.2f}]: sampled {mean[chosen].sum():8.1f}"
-                  f" expected {expected[chosen].sum():8.1f}")
+                  f" expected {expected[chosen].sum():8.1f}  chi2 (3 %) "
+                  f"{np.sum(pull[chosen] ** 2):6.1f} / {np.sum(chosen & lit)}")
 
 
 if __name__ == "__main__":
