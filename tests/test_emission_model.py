@@ -36,19 +36,22 @@ def _integrate(piece, energy_extent, cos_edges, s_points=1201, cos_per_bin=9):
 
 
 def test_the_model_reproduces_yield_and_angular_profile_at_the_nodes(muon):
+    """At two energy nodes (~200 MeV and ~1.4 GeV): the yield exactly, the density's
+    integral within 1 %, and the angular profile over the bins holding 99 % of the
+    light with chi2/bin < 2 against the table's standard errors (measured 0.1-0.2:
+    studies/tracks/emission_model_report.py)."""
     table, model = muon
-    for k in (2, 5):
+    for k in (12, 28):
         energy = float(table.energies[k])
         piece = jax.jit(model.at)(energy)
         profile = _integrate(piece, float(table.distance_edges[k, -1]), table.cos_edges)
         reference = table.photons[k].sum(axis=0)
         assert float(piece.total_yield) == pytest.approx(table.total_yield[k], rel=1e-9)
         assert profile.sum() == pytest.approx(table.total_yield[k], rel=0.01)
-        # the angular profile where the light is: bins holding 90 % of it, within 10 %
-        # (the splines pass through the bin centres, not the bin averages)
         order = np.argsort(reference)[::-1]
-        main = order[: np.searchsorted(np.cumsum(reference[order]), 0.9 * reference.sum()) + 1]
-        np.testing.assert_allclose(profile[main], reference[main], rtol=0.10)
+        main = order[: np.searchsorted(np.cumsum(reference[order]), 0.99 * reference.sum()) + 1]
+        pulls = (profile - reference)[main] / table.angular_error[k][main]
+        assert np.mean(pulls**2) < 2.0
 
 
 def test_between_nodes_the_light_moves_smoothly(muon):

@@ -62,6 +62,8 @@ class EmissionSlice:
             W ``FOOTPRINT_WIDTHS`` (the first: the density itself), and its
             derivatives d/dx, d/dcos, d^2/dx dcos at the knots (photons^(1/2) per
             particle).
+        cells: (W, D - 1, A - 1, 16) the 16 values of ``root`` that the bicubic patch of
+            each knot cell reads (``_cell_blocks``), so that a point reads one block.
         time_mean: (2, D) mean emission-time offset t - s / c (ns) and its d/dx.
         time_variance: (2, D) its variance (ns^2) and d/dx.
         extent: the light's extent S along the initial direction, m.
@@ -73,6 +75,7 @@ class EmissionSlice:
     fraction: jax.Array
     cos: jax.Array
     root: jax.Array
+    cells: jax.Array
     time_mean: jax.Array
     time_variance: jax.Array
     extent: jax.Array
@@ -85,13 +88,13 @@ class EmissionSlice:
         ``width``: None, or the half-width in cos of a semicircle footprint (broadcasting
         with s and cos) that the density is averaged over (module docstring)."""
         x = s / self.extent
-        terms = _bicubic_terms(self.fraction, self.cos, x, cos)
+        weights, i, j = _bicubic_weights(self.fraction, self.cos, x, cos)
         if width is None:
-            root = _bicubic(self.root, terms, 0)
+            root = jnp.sum(weights * self.cells[0, i, j], axis=-1)
         else:
             root = 0.0
-            for weight, layer in _footprint_terms(width, self.root.shape[0]):
-                root = root + weight * _bicubic(self.root, terms, layer)
+            for weight, layer in _footprint_terms(width, self.cells.shape[0]):
+                root = root + weight * jnp.sum(weights * self.cells[layer, i, j], axis=-1)
         return jnp.where((x >= 0.0) & (x <= 1.0), self.scale * root * root, 0.0)
 
     def fraction_profile(self):
@@ -173,6 +176,7 @@ class SplineEmission:
             fraction=self.fraction,
             cos=self.cos,
             root=root,
+            cells=_cell_blocks(root),
             time_mean=combine(self.time_mean),
             time_variance=combine(self.time_variance),
             extent=extent,
@@ -340,26 +344,30 @@ def _cubic(knots, values, slopes, x):
     return h00 * values[i] + h10 * h * slopes[i] + h01 * values[i + 1] + h11 * h * slopes[i + 1]
 
 
-def _bicubic_terms(x_knots, y_knots, x, y):
-    """The 16 (weight, derivative index, x knot, y knot) terms of a bicubic Hermite patch
-    at (x, y) (clamped to the knots); derivative index 0..3: f, df/dx, df/dy, d2f/dxdy."""
+#: The 16 (corner along x, derivative along x, corner along y, derivative along y) of a
+#: bicubic Hermite patch, in the order of a cell block; derivative index dx + dy picks
+#: f, df/dx (1), df/dy (2) or d2f/dxdy (3).
+_PATCH = [(cx, dx, cy, dy) for cx, dx in ((0, 0), (0, 1), (1, 0), (1, 1))
+          for cy, dy in ((0, 0), (0, 2), (1, 0), (1, 2))]
+
+
+def _cell_blocks(root):
+    """(W, X - 1, Y - 1, 16) blocks of the (W, 4, X, Y) ``root``: for each knot cell, the
+    values and derivatives at its 4 corners in ``_PATCH`` order."""
+    x, y = root.shape[2] - 1, root.shape[3] - 1
+    return jnp.stack([root[:, dx + dy, cx:cx + x, cy:cy + y] for cx, dx, cy, dy in _PATCH],
+                     axis=-1)
+
+
+def _bicubic_weights(x_knots, y_knots, x, y):
+    """Weights (..., 16) of a cell block's entries (``_PATCH`` order) in the bicubic
+    Hermite patch at (x, y) (clamped to the knots), and the cell (i, j)."""
     x = jnp.clip(x, x_knots[0], x_knots[-1])
     y = jnp.clip(y, y_knots[0], y_knots[-1])
     i, u, hx = _locate(x_knots, x)
     j, v, hy = _locate(y_knots, y)
-    bx = _hermite(u)
-    by = _hermite(v)
-    # (weight, knot, slope?) along x and y: h00 at i, h10 h at i, h01 at i+1, h11 h at i+1
-    x_terms = ((bx[0], i, 0), (bx[1] * hx, i, 1), (bx[2], i + 1, 0), (bx[3] * hx, i + 1, 1))
-    y_terms = ((by[0], j, 0), (by[1] * hy, j, 2), (by[2], j + 1, 0), (by[3] * hy, j + 1, 2))
-    return [(wx * wy, dx + dy, ii, jj)
-            for wx, ii, dx in x_terms for wy, jj, dy in y_terms]
-
-
-def _bicubic(table, terms, layer):
-    """The bicubic patch of ``table`` (W, 4, X, Y) at ``layer`` (an int or an index array
-    broadcasting with the points), summed over ``terms`` (``_bicubic_terms``)."""
-    total = 0.0
-    for weight, derivative, ii, jj in terms:
-        total = total + weight * table[layer, derivative, ii, jj]
-    return total
+    bx, by = _hermite(u), _hermite(v)
+    along_x = {(0, 0): bx[0], (0, 1): bx[1] * hx, (1, 0): bx[2], (1, 1): bx[3] * hx}
+    along_y = {(0, 0): by[0], (0, 2): by[1] * hy, (1, 0): by[2], (1, 2): by[3] * hy}
+    return jnp.stack([along_x[(cx, dx)] * along_y[(cy, dy)] for cx, dx, cy, dy in _PATCH],
+                     axis=-1), i, j

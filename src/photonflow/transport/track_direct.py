@@ -66,13 +66,15 @@ PANEL_BREAKS = np.array([-1.0, -0.6, -0.2, 0.2, 0.4, 0.5, 0.56, 0.62, 0.65, 0.67
 NODES_PER_PANEL = 2
 #: Sensors refined by sub-discs (the near field): a disc seen from a few of its radii
 #: away is not a point, nor is the Cherenkov ring straight across it, so the
-#: ``NEAR_SENSORS`` discs with the largest light-weighted angular radius r / L (above
-#: ``NEAR_FROM`` rad, fully from ``NEAR_FULL``) are split into equal-area sub-discs in
-#: ``SUB_DISC_RINGS`` rings around a centre one (19 for 2), each integrated as a disc.
-NEAR_SENSORS = 32
+#: ``NEAR_SENSORS`` discs with the largest angular radius r / d seen from the track's
+#: light (d: the distance to the segment from the start to the light's end; weight 0
+#: below ``NEAR_FROM`` rad or the next disc's, rising smoothly to 1 within
+#: ``NEAR_FULL`` - ``NEAR_FROM`` above that) are split into equal-area sub-discs in
+#: ``SUB_DISC_RINGS`` rings around a centre one (37 for 3), each integrated as a disc.
+NEAR_SENSORS = 48
 NEAR_FROM = 0.04
 NEAR_FULL = 0.08
-SUB_DISC_RINGS = 2
+SUB_DISC_RINGS = 3
 #: Arrival-time components of the direct light: the panels (in the order of u) split
 #: into this many runs of equal length, each moment-matched to its nodes' times.
 DIRECT_COMPONENTS = 4
@@ -113,17 +115,27 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
     light = functools.partial(_disc_light, params=params, position=position,
                               direction=direction, time=time, emission=emission,
                               extent=extent)
-    charge, mean, variance, nearness = light(sensors.positions, sensors.normals,
-                                             sensors.radius)
-    near = min(NEAR_SENSORS, sensors.positions.shape[0] - 1)
+    count = sensors.positions.shape[0]
+    near = min(NEAR_SENSORS, count - 1)
     if near <= 0:
-        return charge, mean, variance
+        return light(sensors.positions, sensors.normals, sensors.radius)
+    # the sensors nearest the track's light and their sub-discs, in one pass with the rest
+    offset = sensors.positions - position
+    along = jnp.clip(offset @ direction, 0.0, extent)
+    across = offset - along[:, None] * direction
+    gap = safe_sqrt(jnp.sum(across * across, axis=1))
+    nearness = sensors.radius / jnp.maximum(gap, sensors.radius)
     index, blend = _near_field(nearness, near)
     offsets, scale = _sub_disc_offsets(sensors.normals[index], sensors.radius[index])
-    sub = light((sensors.positions[index][:, None, :] + offsets).reshape(-1, 3),
-                jnp.repeat(sensors.normals[index], offsets.shape[1], axis=0),
-                jnp.repeat(sensors.radius[index] * scale, offsets.shape[1]))
-    parts = [x.reshape(near, offsets.shape[1], -1) for x in sub[:3]]
+    subs = offsets.shape[1]
+    charge, mean, variance = light(
+        jnp.concatenate([sensors.positions,
+                         (sensors.positions[index][:, None, :] + offsets).reshape(-1, 3)]),
+        jnp.concatenate([sensors.normals, jnp.repeat(sensors.normals[index], subs, axis=0)]),
+        jnp.concatenate([sensors.radius, jnp.repeat(sensors.radius[index] * scale, subs)]))
+    sub = (charge[count:], mean[count:], variance[count:])
+    charge, mean, variance = charge[:count], mean[:count], variance[:count]
+    parts = [x.reshape(near, subs, -1) for x in sub]
     fine = _mixed(parts[0], parts[1], parts[2], axis=1)
     weights = jnp.stack([1.0 - blend, blend], axis=1)[:, :, None]
     mixed = _mixed(jnp.stack([charge[index], fine[0]], axis=1) * weights,
@@ -185,8 +197,7 @@ def _mixed(charge, mean, variance, axis):
 def _disc_light(positions, normals, radius, *, params, position, direction, time, emission,
                 extent):
     """``track_direct_light`` of the discs (centres (N, 3) m, inward normals (N, 3), radii
-    (N,) m) without the near-field refinement, and each disc's nearness: its light-
-    weighted angular radius r / L seen from the track (rad)."""
+    (N,) m) without the near-field refinement."""
     dtype = positions.dtype
     offset = positions - position  # (N, 3)
     along = offset @ direction
@@ -248,6 +259,4 @@ def _disc_light(positions, normals, radius, *, params, position, direction, time
     grouped = [jnp.pad(x, ((0, 0), (0, pad))).reshape(x.shape[0], groups, -1)
                for x in (light, arrival, jnp.broadcast_to(offset_variance, light.shape))]
     charge, mean, variance = _mixed(*grouped, axis=-1)  # (N, C) each
-    total = jnp.sum(light, axis=1)
-    nearness = jnp.sum(light * jnp.sqrt(radius2) / reach, axis=1) / where(total > 0, total, 1.0)
-    return charge, reference[:, None] + mean, variance, nearness
+    return charge, reference[:, None] + mean, variance

@@ -5,7 +5,8 @@ The track's energy selects its emission model (``photonflow.emission``: the ship
 spline model of its particle in the detector's medium); the direct light comes by
 quadrature in the angle to the track (``track_direct``), the indirect light (scattered
 and reflected, by bounce order) from the weighted rays of ``indirect.py`` leaving the
-track (``track_rays.TrackEmitter``). The light is a mixture of C + n_bounces arrival-time
+track (``track_rays.TrackEmitter``: their geometry fixed by a reference track, so the
+indirect light is smooth in the track). The light is a mixture of C + n_bounces arrival-time
 components per sensor: C for the direct light (``track_direct.DIRECT_COMPONENTS``, each
 moment-matched to a run of the quadrature's nodes), then one per bounce order as for
 point sources; the sensor response (``response.expected_response``) then
@@ -31,7 +32,7 @@ from .track_rays import TrackEmitter
 
 
 def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, spectral,
-                       key=None, *, shape, config):
+                       key=None, reference=None, *, shape, config):
     """The ``SensorLight`` of one track (a ``Track`` of one particle, leaves of the
     computation's dtype): (N, C + n_bounces) p.e. of sensors of efficiency 1 (C direct
     components, ``track_direct.DIRECT_COMPONENTS``, then by the order of the last
@@ -39,8 +40,10 @@ def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, s
     ns^2). ``spectral``: the sensor's mean relative spectral response over the emitted
     spectrum (``cherenkov_spectral_factor``), which scales the QE at the reference
     wavelength; ``key`` fixes the rays (None: ``jax.random.key(0)``); ``shape`` and
-    ``config`` static. Traced inline."""
+    ``config`` static; ``reference``: the track that fixes the indirect light's rays
+    (``track_rays``; None: the track itself, held fixed). Traced inline."""
     key = jax.random.key(0) if key is None else key
+    rays_from = jax.tree.map(jax.lax.stop_gradient, track if reference is None else reference)
     emission = model.at(track.energy)
     params = params.replace(quantum_efficiency=params.quantum_efficiency * spectral)
     direction = track.direction / jnp.linalg.norm(track.direction)
@@ -50,7 +53,10 @@ def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, s
     total = jnp.sum(charge, axis=1)
     reference = jnp.sum(charge * mean, axis=1) / where(total > 0, total, 1.0)
     reference = where(total > 0, reference, mean[:, 0])
-    emitter = TrackEmitter(track.position, direction, track.time, emission, length)
+    emitter = TrackEmitter(track.position, direction, track.time, emission, length,
+                           rays_from.position,
+                           rays_from.direction / jnp.linalg.norm(rays_from.direction),
+                           model.at(rays_from.energy))
     indirect = indirect_light_jit(sensors, params, emitter, reference, key, shape=shape,
                                   config=config)
     charges = jnp.concatenate([charge, indirect.charge.T], axis=1)  # (N, C + n_bounces)
@@ -77,9 +83,9 @@ def _inside_length(shape, position, direction):
 
 @functools.partial(jax.jit, static_argnames=("shape", "config"))
 def track_expected_jit(sensors: Sensors, params, track, model: SplineEmission, spectral,
-                       key=None, *, shape, config) -> Prediction:
+                       key=None, reference=None, *, shape, config) -> Prediction:
     """``expected`` of one track on arrays (``track_sensor_light`` then the sensor
     response); ``shape`` and ``config`` static. Returns a ``Prediction``."""
-    light = track_sensor_light(sensors, params, track, model, spectral, key, shape=shape,
-                               config=config)
+    light = track_sensor_light(sensors, params, track, model, spectral, key, reference,
+                               shape=shape, config=config)
     return expected_response(light, params)

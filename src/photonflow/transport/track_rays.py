@@ -1,17 +1,28 @@
 """Rays leaving a particle track, for the indirect light of the expected mode.
 
 A ``TrackEmitter`` is what the weighted-ray estimator (``indirect.py``) needs of a track
-instead of a point source: ``leaving(key, count, dtype)`` gives rays whose origins lie
-along the track and whose directions follow its emission model. The fraction x = s / S
-of the extent and the cosine to the track are drawn from a fixed proposal q(x) q(cos)
-(the slice's marginal in x, and its angular profile mixed with 20 % of a uniform one so
-that no angle is starved), by inverse CDF of a shifted Fibonacci lattice (cosine,
-azimuth) and independent uniforms (x); each ray carries rho(s, cos) / (q(x) q(cos) S)
-/ count photons. The proposal is held fixed (``stop_gradient``): the rays' geometry moves
-with the track's position and direction, and the energy and every parameter enter
-through the weights, as for point sources. There is no first-order mirror quadrature
-for a track: its source probes count every mirrored path (``mirror_quadrature`` False).
-Lengths m, times ns.
+instead of a point source: ``leaving(key, count, dtype)`` gives rays whose directions
+follow its emission model and whose weights carry its light. The rays' geometry is
+fixed by a *reference* track (held constant: ``stop_gradient``), the track itself
+enters only through the weights, so the indirect light is a smooth function of the
+track's position, direction, energy and time near the reference (a ray never starts
+or stops hitting a disc as the track moves).
+
+Proposal (reference track R, start x_R, direction d_R, its energy's emission slice):
+the fraction x = s / S_R of the extent from the slice's marginal in x (mixed with 10 %
+of a uniform density over [-3 sigma, S_R + 3 sigma] / S_R), the cosine to d_R from its
+angular profile mixed with 20 % of a uniform one (so that no angle is starved), a
+uniform azimuth, and a lateral offset from a 2-D Gaussian of width sigma =
+``SPREAD`` m: origin x_R + s d_R + offset. Target (the track T being predicted): its
+emission smeared by the same kernel, rho_T(s_T, cos_T) / 2 pi x K_sigma(r_T) x
+Phi(s_T / sigma) Phi((L_T - s_T) / sigma), with s_T, r_T and cos_T the ray's origin
+and direction in T's frame, L_T the light's extent up to the wall and Phi the normal
+CDF (soft ends of the track). Each ray carries target / proposal / count photons. At
+T = R this estimates the indirect light of the track smeared by ~sigma, which a
+scattered or reflected photon's path of metres does not resolve; as T moves away from
+R by more than ~sigma or a few degrees the weights grow uneven (noisier, not biased).
+There is no first-order mirror quadrature for a track: its source probes count every
+mirrored path (``mirror_quadrature`` False). Lengths m, times ns.
 """
 
 from __future__ import annotations
@@ -20,6 +31,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+from jax.scipy.special import ndtr
 
 from ..constants import SPEED_OF_LIGHT
 from ..emission import EmissionSlice
@@ -29,16 +41,22 @@ from .rays import shifted_lattice
 
 #: Share of the uniform density in the cosine proposal.
 UNIFORM_SHARE = 0.2
+#: Share of the uniform density in the proposal along the track.
+UNIFORM_ALONG = 0.1
+#: Width sigma (m) of the kernel that smears the track's light for its rays.
+SPREAD = 0.25
 
 
 @pytree_dataclass
 class TrackEmitter:
-    """A track as a light emitter for the weighted rays.
+    """A track as a light emitter for the weighted rays (module docstring).
 
     Attributes:
         position: (3,) start, m. direction: (3,) unit vector. time: start, ns.
         emission: the track's ``EmissionSlice`` (its energy's emission model).
         length: light is emitted only for s <= length, m (the distance to the wall).
+        reference_position, reference_direction, reference_emission: the reference
+            track that fixes the rays' geometry (used through ``stop_gradient``).
         mirror_quadrature: False (static): no first-order mirror quadrature.
     """
 
@@ -47,32 +65,58 @@ class TrackEmitter:
     time: jax.Array
     emission: EmissionSlice
     length: jax.Array
+    reference_position: jax.Array
+    reference_direction: jax.Array
+    reference_emission: EmissionSlice
     mirror_quadrature: bool = static_field(default=False)
 
     def leaving(self, key, count: int, dtype) -> dict:
         """``count`` rays leaving the track (module docstring): origins (count, 3) m, unit
         directions (count, 3), expected photons (count,) and times (count,) ns."""
-        lattice_key, distance_key = jax.random.split(key)
+        lattice_key, distance_key, spread_key = jax.random.split(key, 3)
         u = shifted_lattice(lattice_key, count, dtype)
         v = jax.random.uniform(distance_key, (count,), dtype)
-        emission = self.emission
-        fixed = jax.lax.stop_gradient(emission)
-        x_grid, x_pdf = _padded_density(fixed.fraction, 0.0, 1.0, fixed.fraction_profile())
+        lateral = jax.random.normal(spread_key, (count, 2), dtype)
+        fixed, start, axis = jax.lax.stop_gradient(
+            (self.reference_emission, self.reference_position, self.reference_direction))
+        pad = 3.0 * SPREAD / fixed.extent
+        x_grid, x_pdf = _padded_density(fixed.fraction, -pad, 1.0 + pad,
+                                        fixed.fraction_profile())
+        x_pdf = (1.0 - UNIFORM_ALONG) * x_pdf + UNIFORM_ALONG / (1.0 + 2.0 * pad)
         c_grid, c_profile = _padded_density(fixed.cos, -1.0, 1.0, fixed.cos_profile())
         c_pdf = (1.0 - UNIFORM_SHARE) * c_profile + UNIFORM_SHARE * 0.5
         x, q_x = _inverse_cdf(x_grid, x_pdf, v)
         cos, q_cos = _inverse_cdf(c_grid, c_pdf, u[0])
-        extent = fixed.extent
-        s = x * extent
-        proposal = q_x * q_cos
-        weight = emission.density(s, cos) * extent / jnp.where(proposal > 0, proposal, 1.0)
-        weight = jnp.where((proposal > 0) & (s <= self.length), weight, 0.0) / count
-        origins = self.position + s[:, None] * self.direction
-        directions = deflect(jnp.broadcast_to(self.direction, (count, 3)), cos,
-                             2.0 * math.pi * u[1])
-        offset, _ = emission.time_moments(s)
-        time = self.time + s / SPEED_OF_LIGHT + offset
-        return {"origins": origins, "directions": directions, "weight": weight, "time": time}
+        first, second = _across(axis)
+        origins = start + (x * fixed.extent)[:, None] * axis \
+            + SPREAD * (lateral[:, :1] * first + lateral[:, 1:] * second)
+        directions = deflect(jnp.broadcast_to(axis, (count, 3)), cos, 2.0 * math.pi * u[1])
+        kernel_reference = jnp.exp(-0.5 * jnp.sum(lateral * lateral, axis=1))
+        proposal = q_x / fixed.extent * q_cos * kernel_reference
+
+        # the track's smeared emission at each ray's origin and direction
+        offset = origins - self.position
+        s = offset @ self.direction
+        across2 = jnp.maximum(jnp.sum(offset * offset, axis=1) - s * s, 0.0)
+        extent = jnp.minimum(self.emission.extent, self.length)
+        ends = ndtr(s / SPREAD) * ndtr((extent - s) / SPREAD)
+        inside = jnp.clip(s, 0.0, extent)
+        target = self.emission.density(inside, directions @ self.direction) * ends \
+            * jnp.exp(-0.5 * across2 / SPREAD**2)
+        weight = jnp.where(proposal > 0, target / jnp.where(proposal > 0, proposal, 1.0), 0.0)
+        mean_offset, _ = self.emission.time_moments(inside)
+        time = self.time + s / SPEED_OF_LIGHT + mean_offset
+        return {"origins": origins, "directions": directions, "weight": weight / count,
+                "time": time}
+
+
+def _across(axis):
+    """Two unit vectors perpendicular to the unit vector ``axis`` and to each other."""
+    helper = jnp.where(jnp.abs(axis[2]) < 0.9, jnp.array([0.0, 0.0, 1.0], axis.dtype),
+                       jnp.array([1.0, 0.0, 0.0], axis.dtype))
+    first = jnp.cross(axis, helper)
+    first = first / jnp.linalg.norm(first)
+    return first, jnp.cross(axis, first)
 
 
 def _padded_density(knots, low, high, values):
