@@ -73,6 +73,51 @@ def test_direct_light_quadrature_matches_a_brute_force_integral():
         assert charge[picked].sum() == pytest.approx(brute.sum(), rel=0.003)
 
 
+def test_direct_light_next_to_the_sensors_matches_traced_photons_of_the_model(toy):
+    """A 600 MeV muon 0.6 m from the barrel, heading out (its ring lands on sensors a few
+    of their radii away): the direct light against an independent Monte Carlo of the
+    same emission model, 400,000 photons drawn from its density and traced to the sensor
+    discs (attenuation, acceptance, QE x the spectral factor): the total within 1.5 %,
+    the two brightest sensors (97 % of the light) within 3 % each."""
+    from photonflow.emission.models import cherenkov_spectral_factor
+    from photonflow.geometry.intersect import detector_ray_hits
+    from photonflow.transport.tracks import principal_sensor_model
+
+    detector, params = toy
+    start, direction = np.array([1.4, 0.0, 0.5]), np.array([1.0, 0.0, 0.0])
+    track = pf.Track("mu-", start, direction, 600.0, 0.0)
+    charge = np.asarray(pf.expected(detector, params, track,
+                                    config=pf.TransportConfig(n_bounces=0)).charge, float)
+    emission = emission_model("mu-", "water").at(600.0)
+    s_edges, cos_edges = np.linspace(0.0, 0.6, 241), np.linspace(-1.0, 1.0, 4001)
+    grid_s, grid_c = np.meshgrid(s_edges, cos_edges, indexing="ij")
+    density = np.asarray(emission.density(jnp.asarray(grid_s), jnp.asarray(grid_c)), float)
+    cells = density[:-1, :-1] * np.diff(s_edges)[:, None] * np.diff(cos_edges)[None, :]
+    rng = np.random.default_rng(1)
+    count = 400_000
+    i, j = np.unravel_index(rng.choice(cells.size, count, p=(cells / cells.sum()).ravel()),
+                            cells.shape)
+    s = s_edges[i] + rng.random(count) * np.diff(s_edges)[i]
+    cos = cos_edges[j] + rng.random(count) * np.diff(cos_edges)[j]
+    azimuth = 2 * np.pi * rng.random(count)
+    sine = np.sqrt(1 - cos**2)
+    rays = np.stack([cos, sine * np.cos(azimuth), sine * np.sin(azimuth)], axis=1)
+    hit, distance = (np.asarray(x) for x in detector_ray_hits(
+        detector, jnp.asarray(start + s[:, None] * direction, jnp.float32),
+        jnp.asarray(rays, jnp.float32)))
+    seen = hit >= 0
+    cos_in = -np.sum(rays[seen] * np.asarray(detector.sensor_normals)[hit[seen]], axis=1)
+    weight = np.exp(-float(interaction_rates(params)[3]) * distance[seen]) * np.asarray(
+        acceptance_at_cos(params.angular_acceptance, jnp.asarray(cos_in, jnp.float32)))
+    traced = np.bincount(hit[seen], weights=weight, minlength=detector.n_sensors)
+    traced *= cells.sum() / count * float(params.quantum_efficiency) \
+        * cherenkov_spectral_factor(principal_sensor_model(detector), "water")
+    assert charge.sum() == pytest.approx(traced.sum(), rel=0.015)
+    brightest = np.argsort(traced)[::-1][:2]
+    assert traced[brightest].sum() > 0.95 * traced.sum()
+    np.testing.assert_allclose(charge[brightest], traced[brightest], rtol=0.03)
+
+
 def test_the_prediction_moves_smoothly_with_the_track(toy):
     """Moving the start by 1 mm changes every sensor's direct light as the gradient says
     (no stripes from the quadrature), in float64. (The rays of the indirect light move

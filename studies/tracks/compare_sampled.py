@@ -2,11 +2,12 @@
 
     python studies/tracks/compare_sampled.py [--detector SK] [--particle mu-]
         [--energy 1000] [--events 60] [--start 0,0,0] [--direction 1,0,0]
-        [--absorption-only]
+        [--absorption-only] [--keys 1]
 
 Per-sensor p.e. of generator + sampled transport (counted before the charge response)
-against ``expected`` (4,096 rays); prints the totals, the per-sensor chi2/ndf (with and
-without a 3 % floor) and the light by the sensors' angle to the track.
+against ``expected`` (4,096 rays, averaged over ``--keys`` ray keys); prints the totals,
+the per-sensor chi2/ndf (with and without a 3 % floor) and the light by the sensors'
+angle to the track.
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ def main() -> None:
     parser.add_argument("--start", type=_vector, default=_vector("0,0,0"))
     parser.add_argument("--direction", type=_vector, default=_vector("1,0,0"))
     parser.add_argument("--absorption-only", action="store_true")
+    parser.add_argument("--keys", type=int, default=1,
+                        help="average the expected mode over this many ray keys")
     args = parser.parse_args()
     detector = pf.load_detector(args.detector)
     base = pf.default_params(detector)
@@ -44,8 +47,10 @@ def main() -> None:
                                 sensor_reflectivity=np.float32(0.0))
     direction = args.direction / np.linalg.norm(args.direction)
     track = pf.Track(args.particle, args.start, direction, args.energy, 0.0)
-    expected = np.asarray(pf.expected(detector, params, track,
-                                      config=pf.TransportConfig(n_rays=4096)).charge, float)
+    expected = np.mean([np.asarray(pf.expected(detector, params, track,
+                                               config=pf.TransportConfig(n_rays=4096),
+                                               key=jax.random.key(k)).charge, float)
+                        for k in range(args.keys)], axis=0)
     light = track_light(detector)
     counts = np.zeros((args.events, detector.n_sensors))
     for index in range(args.events):

@@ -117,9 +117,10 @@ def _plot(model, path):
 
     low, high = model.energy_range
     energies = np.geomspace(low * 1.001, high, 800)
-    slope = jax.vmap(jax.grad(lambda e: model.yield_at(e) * e))(jnp.asarray(energies))
+    slope = jax.vmap(jax.grad(lambda e: jnp.log(model.yield_at(jnp.exp(e)))))(
+        jnp.log(jnp.asarray(energies)))
     figure, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
-    left.plot(energies, np.asarray(slope) / np.asarray(jax.vmap(model.yield_at)(energies)))
+    left.plot(energies, np.asarray(slope))
     for log_e in np.asarray(model.log_energy):
         left.axvline(np.exp(log_e), color="0.85", lw=0.5)
     left.set(xscale="log", yscale="log", xlabel="kinetic energy (MeV)",
