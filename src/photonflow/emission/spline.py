@@ -199,24 +199,29 @@ class SplineEmission:
 #: in x follow the light's shape, not the table's statistical wiggles, and the
 #: direct-light quadrature in angle integrates them accurately.
 MERGED_DISTANCE_BINS = 4
+#: ... except the first ``UNMERGED_START`` bins, kept single: the light of a track's
+#: first metre (the ring's sharp outer edge) changes within a few % of the extent.
+UNMERGED_START = 4
 
 
 def spline_emission(table: EmissionTable, threshold: float, dtype=None) -> SplineEmission:
     """Fit the spline model to ``table``; ``threshold``: the particle's Cherenkov threshold
     in the table's medium (kinetic MeV, below the table's first energy); arrays of
     ``dtype`` (default JAX's default float). The table's distance bins are merged by
-    ``MERGED_DISTANCE_BINS``."""
+    ``MERGED_DISTANCE_BINS`` after the first ``UNMERGED_START``."""
     import interpax
 
     energies = np.asarray(table.energies, np.float64)
     if not 0.0 < threshold < energies[0]:
         raise ValueError(f"threshold = {threshold:g} MeV: must lie below the table's first"
                          f" energy {energies[0]:g} MeV")
-    table = _merge_distance_bins(table, MERGED_DISTANCE_BINS)
     bins = table.photons.shape[1]
-    fraction = (np.arange(bins) + 0.5) / bins
+    groups = np.concatenate([np.arange(UNMERGED_START),
+                             np.arange(UNMERGED_START, bins + 1, MERGED_DISTANCE_BINS)])
+    table = _merge_distance_bins(table, groups)
+    fraction = 0.5 * (groups[1:] + groups[:-1]) / bins
     cos = 0.5 * (table.cos_edges[1:] + table.cos_edges[:-1])
-    widths = np.outer(np.full(bins, 1.0 / bins), np.diff(table.cos_edges))
+    widths = np.outer(np.diff(groups) / bins, np.diff(table.cos_edges))
     density = np.maximum(table.photons, 0.0) / widths  # (E, D, A)
     density = np.concatenate([np.zeros_like(density[:1]), density])
     averaged = np.maximum(
@@ -280,18 +285,19 @@ def _footprint_terms(width, layers: int):
             for weight, shift in zip(weights, (-1, 0, 1, 2), strict=True)]
 
 
-def _merge_distance_bins(table: EmissionTable, merge: int) -> EmissionTable:
-    """``table`` with every ``merge`` adjacent distance bins summed into one."""
+def _merge_distance_bins(table: EmissionTable, groups: np.ndarray) -> EmissionTable:
+    """``table`` with its distance bins summed into the groups [groups[k], groups[k+1])
+    (``groups``: increasing bin indices from 0 to the number of bins)."""
     bins = table.photons.shape[1]
-    if bins % merge:
-        raise ValueError(f"{bins} distance bins cannot be merged by {merge}")
+    if groups[0] != 0 or groups[-1] != bins or np.any(np.diff(groups) <= 0):
+        raise ValueError(f"distance groups {groups.tolist()} do not partition {bins} bins")
 
     def merged(array):
-        return array.reshape(array.shape[0], bins // merge, merge, *array.shape[2:]).sum(axis=2)
+        return np.add.reduceat(array, groups[:-1], axis=1)
 
     return dataclasses.replace(
         table,
-        distance_edges=table.distance_edges[:, ::merge],
+        distance_edges=table.distance_edges[:, groups],
         photons=merged(table.photons),
         time_offsets=merged(table.time_offsets),
         offset_sums=merged(table.offset_sums),
