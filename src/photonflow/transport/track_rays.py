@@ -10,17 +10,20 @@ or stops hitting a disc as the track moves).
 
 Proposal (reference track R, start x_R, direction d_R, its energy's emission slice):
 the fraction x = s / S_R of the extent from the slice's marginal in x (mixed with 10 %
-of a uniform density over [-3 sigma, S_R + 3 sigma] / S_R), the cosine to d_R from its
+of a uniform density over [-3 w, 1.5 S_R + 3 w] / S_R, w the width of the soft ends
+below, so that a longer track than the reference is covered), the cosine to d_R from its
 angular profile mixed with 20 % of a uniform one (so that no angle is starved), a
 uniform azimuth, and a lateral offset from a 2-D Gaussian of width sigma =
 ``SPREAD`` m: origin x_R + s d_R + offset. Target (the track T being predicted): its
 emission smeared by the same kernel, rho_T(s_T, cos_T) / 2 pi x K_sigma(r_T) x
 Phi(s_T / sigma) Phi((L_T - s_T) / sigma), with s_T, r_T and cos_T the ray's origin
-and direction in T's frame, L_T the light's extent up to the wall and Phi the normal
-CDF (soft ends of the track). Each ray carries target / proposal / count photons. At
-T = R this estimates the indirect light of the track smeared by ~sigma, which a
-scattered or reflected photon's path of metres does not resolve; as T moves away from
-R by more than ~sigma or a few degrees the weights grow uneven (noisier, not biased).
+and direction in T's frame, L_T the light's extent up to the wall, Phi the normal CDF
+and sigma replaced by w = min(sigma, L_T / 8) in it (soft ends of the track, narrow
+enough on a short track to keep its light's total). Each ray carries target / proposal
+/ count photons. At T = R this estimates the indirect light of the track smeared by
+~sigma, which a scattered or reflected photon's path of metres does not resolve; as T
+moves away from R by more than ~sigma or a few degrees the weights grow uneven
+(noisier, not biased).
 There is no first-order mirror quadrature for a track: its source probes count every
 mirrored path (``mirror_quadrature`` False). Lengths m, times ns.
 """
@@ -45,6 +48,9 @@ UNIFORM_SHARE = 0.2
 UNIFORM_ALONG = 0.1
 #: Width sigma (m) of the kernel that smears the track's light for its rays.
 SPREAD = 0.25
+#: The proposal along the track reaches this many times the reference's extent (a track
+#: of higher energy than its reference emits further).
+REACH = 1.5
 
 
 @pytree_dataclass
@@ -79,10 +85,10 @@ class TrackEmitter:
         lateral = jax.random.normal(spread_key, (count, 2), dtype)
         fixed, start, axis = jax.lax.stop_gradient(
             (self.reference_emission, self.reference_position, self.reference_direction))
-        pad = 3.0 * SPREAD / fixed.extent
-        x_grid, x_pdf = _padded_density(fixed.fraction, -pad, 1.0 + pad,
+        pad = 3.0 * _end_width(fixed.extent) / fixed.extent
+        x_grid, x_pdf = _padded_density(fixed.fraction, -pad, REACH + pad,
                                         fixed.fraction_profile())
-        x_pdf = (1.0 - UNIFORM_ALONG) * x_pdf + UNIFORM_ALONG / (1.0 + 2.0 * pad)
+        x_pdf = (1.0 - UNIFORM_ALONG) * x_pdf + UNIFORM_ALONG / (REACH + 2.0 * pad)
         c_grid, c_profile = _padded_density(fixed.cos, -1.0, 1.0, fixed.cos_profile())
         c_pdf = (1.0 - UNIFORM_SHARE) * c_profile + UNIFORM_SHARE * 0.5
         x, q_x = _inverse_cdf(x_grid, x_pdf, v)
@@ -99,7 +105,8 @@ class TrackEmitter:
         s = offset @ self.direction
         across2 = jnp.maximum(jnp.sum(offset * offset, axis=1) - s * s, 0.0)
         extent = jnp.minimum(self.emission.extent, self.length)
-        ends = ndtr(s / SPREAD) * ndtr((extent - s) / SPREAD)
+        width = _end_width(extent)
+        ends = ndtr(s / width) * ndtr((extent - s) / width)
         inside = jnp.clip(s, 0.0, extent)
         target = self.emission.density(inside, directions @ self.direction) * ends \
             * jnp.exp(-0.5 * across2 / SPREAD**2)
@@ -108,6 +115,12 @@ class TrackEmitter:
         time = self.time + s / SPEED_OF_LIGHT + mean_offset
         return {"origins": origins, "directions": directions, "weight": weight / count,
                 "time": time}
+
+
+def _end_width(extent):
+    """Width (m) of the soft ends of a track's light: ``SPREAD``, or an eighth of the
+    extent for short tracks (so that the soft ends keep the light's total)."""
+    return jnp.minimum(SPREAD, extent / 8.0)
 
 
 def _across(axis):
