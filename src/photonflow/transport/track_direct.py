@@ -55,7 +55,7 @@ from ..constants import SPEED_OF_LIGHT
 from ..geometry.sensor_arrays import Sensors
 from ..numerics import safe_sqrt, where
 from ..response.detection import acceptance_at_cos
-from .optics import interaction_rates, travel_time
+from .optics import interaction_rates, orthonormal_basis, travel_time
 
 #: Panel boundaries in cos(angle to the track): 0.01-0.02 wide over the Cherenkov peaks
 #: of water (~0.74) and scintillator (~0.67) and of slower particles (up to ~0.95).
@@ -136,7 +136,7 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
     sub = (charge[count:], mean[count:], variance[count:])
     charge, mean, variance = charge[:count], mean[:count], variance[:count]
     parts = [x.reshape(near, subs, -1) for x in sub]
-    fine = _mixed(parts[0], parts[1], parts[2], axis=1)
+    fine = _mixed(*parts, axis=1)
     weights = jnp.stack([1.0 - blend, blend], axis=1)[:, :, None]
     mixed = _mixed(jnp.stack([charge[index], fine[0]], axis=1) * weights,
                    jnp.stack([mean[index], fine[1]], axis=1),
@@ -170,11 +170,7 @@ def _sub_disc_offsets(normals, radius):
         angles += [2 * math.pi * (k + 0.5 * (ring % 2)) / (6 * ring) for k in range(6 * ring)]
         inner = outer
     dtype = normals.dtype
-    helper = jnp.where(jnp.abs(normals[:, 2:3]) < 0.9, jnp.array([0.0, 0.0, 1.0], dtype),
-                       jnp.array([1.0, 0.0, 0.0], dtype))
-    first = jnp.cross(normals, helper)
-    first = first / jnp.linalg.norm(first, axis=1, keepdims=True)
-    second = jnp.cross(normals, first)
+    first, second = orthonormal_basis(normals)
     radii = jnp.asarray(radii, dtype)[None, :, None] * radius[:, None, None]
     angles = jnp.asarray(angles, dtype)[None, :, None]
     offsets = radii * (jnp.cos(angles) * first[:, None] + jnp.sin(angles) * second[:, None])

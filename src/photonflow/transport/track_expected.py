@@ -53,10 +53,11 @@ def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, s
     total = jnp.sum(charge, axis=1)
     reference = jnp.sum(charge * mean, axis=1) / where(total > 0, total, 1.0)
     reference = where(total > 0, reference, mean[:, 0])
+    rays_emission = emission if reference is None else model.at(rays_from.energy)
     emitter = TrackEmitter(track.position, direction, track.time, emission, length,
                            rays_from.position,
                            rays_from.direction / jnp.linalg.norm(rays_from.direction),
-                           model.at(rays_from.energy))
+                           rays_emission)  # held fixed by TrackEmitter
     indirect = indirect_light_jit(sensors, params, emitter, reference, key, shape=shape,
                                   config=config)
     charges = jnp.concatenate([charge, indirect.charge.T], axis=1)  # (N, C + n_bounces)

@@ -39,7 +39,7 @@ from jax.scipy.special import ndtr
 from ..constants import SPEED_OF_LIGHT
 from ..emission import EmissionSlice
 from ..pytree import pytree_dataclass, static_field
-from .optics import deflect
+from .optics import deflect, orthonormal_basis
 from .rays import shifted_lattice
 
 #: Share of the uniform density in the cosine proposal.
@@ -93,7 +93,7 @@ class TrackEmitter:
         c_pdf = (1.0 - UNIFORM_SHARE) * c_profile + UNIFORM_SHARE * 0.5
         x, q_x = _inverse_cdf(x_grid, x_pdf, v)
         cos, q_cos = _inverse_cdf(c_grid, c_pdf, u[0])
-        first, second = _across(axis)
+        first, second = orthonormal_basis(axis)
         origins = start + (x * fixed.extent)[:, None] * axis \
             + SPREAD * (lateral[:, :1] * first + lateral[:, 1:] * second)
         directions = deflect(jnp.broadcast_to(axis, (count, 3)), cos, 2.0 * math.pi * u[1])
@@ -121,15 +121,6 @@ def _end_width(extent):
     """Width (m) of the soft ends of a track's light: ``SPREAD``, or an eighth of the
     extent for short tracks (so that the soft ends keep the light's total)."""
     return jnp.minimum(SPREAD, extent / 8.0)
-
-
-def _across(axis):
-    """Two unit vectors perpendicular to the unit vector ``axis`` and to each other."""
-    helper = jnp.where(jnp.abs(axis[2]) < 0.9, jnp.array([0.0, 0.0, 1.0], axis.dtype),
-                       jnp.array([1.0, 0.0, 0.0], axis.dtype))
-    first = jnp.cross(axis, helper)
-    first = first / jnp.linalg.norm(first)
-    return first, jnp.cross(axis, first)
 
 
 def _padded_density(knots, low, high, values):
