@@ -1,9 +1,16 @@
 """``Prediction``: expected light per sensor, the input of the likelihood.
 
 For each of N sensors it holds the expected number of signal photoelectrons and the
-arrival-time density of that light as a K-component Gaussian mixture (the sensor's
-transit-time spread and time offset already folded in by whoever builds it). Dark
-noise is not included; the likelihood adds it.
+arrival-time density of that light as a K-component mixture (the sensor's transit-time
+spread and time offset already folded in by whoever builds it) of Gaussians or, where a
+component has a decay time tau > 0 (scintillation light), exponentially modified
+Gaussians: a Gaussian (mean mu, width sigma) convolved with an exponential delay of mean
+tau, density
+
+    f(t) = exp(sigma^2 / (2 tau^2) - (t - mu) / tau) Phi((t - mu) / sigma - sigma / tau) / tau,
+
+cumulative Phi((t - mu) / sigma) - tau f(t). Dark noise is not included; the likelihood
+adds it.
 """
 
 from __future__ import annotations
@@ -12,7 +19,7 @@ import math
 
 import jax
 import jax.numpy as jnp
-from jax.scipy.special import ndtr
+from jax.scipy.special import log_ndtr, ndtr
 
 from .numerics import where
 from .pytree import pytree_dataclass, static_field
@@ -38,6 +45,8 @@ class Prediction:
             (``expected`` fills them from ``Params``), so that ``nll(prediction, event)``
             needs nothing else; None when not known.
         window: readout window (t0, t1), ns (static), or None.
+        time_tau: (N, K) decay times of exponentially modified components, ns (0: a
+            Gaussian component), or None: all components Gaussian.
     """
 
     charge: jax.Array
@@ -48,6 +57,7 @@ class Prediction:
     dark_rate: jax.Array | None = None
     spe_width: jax.Array | None = None
     window: tuple[float, float] | None = static_field(default=None)
+    time_tau: jax.Array | None = None
 
     @property
     def n_sensors(self) -> int:
@@ -100,8 +110,7 @@ class Prediction:
             time (components of zero weight contribute nothing, to the value or the
             gradient).
         """
-        z = self._z(t)
-        log_component = -0.5 * z * z - jnp.log(self.time_sigma) - _HALF_LOG_2PI
+        log_component = self._log_components(t)
         w = self.time_weight
         used = w > 0
         terms = where(used, jnp.log(where(used, w, 1.0)) + log_component, -jnp.inf)
@@ -116,4 +125,24 @@ class Prediction:
 
     def time_cdf(self, t: jax.Array) -> jax.Array:
         """Cumulative arrival-time distribution F_j(t_j) in [0, 1], for t of shape (N,) ns."""
-        return jnp.sum(self.time_weight * ndtr(self._z(t)), axis=1)
+        gaussian = ndtr(self._z(t))
+        if self.time_tau is None:
+            return jnp.sum(self.time_weight * gaussian, axis=1)
+        delayed = self.time_tau > 0
+        tau = where(delayed, self.time_tau, 1.0)
+        # Phi(z) - tau f(t), tau f(t) written from its logarithm
+        tail = jnp.exp(jnp.log(tau) + self._log_components(t))
+        return jnp.sum(self.time_weight * jnp.clip(where(delayed, gaussian - tail, gaussian),
+                                                   0.0, 1.0), axis=1)
+
+    def _log_components(self, t: jax.Array) -> jax.Array:
+        """(N, K) log densities of the components at one time per sensor, log(1/ns)."""
+        z = self._z(t)
+        gaussian = -0.5 * z * z - jnp.log(self.time_sigma) - _HALF_LOG_2PI
+        if self.time_tau is None:
+            return gaussian
+        delayed = self.time_tau > 0
+        tau = where(delayed, self.time_tau, 1.0)
+        ratio = self.time_sigma / tau
+        modified = 0.5 * ratio * ratio - z * ratio + log_ndtr(z - ratio) - jnp.log(tau)
+        return where(delayed, modified, gaussian)

@@ -2,7 +2,7 @@
 
     python studies/tracks/compare_sampled.py [--detector SK] [--particle mu-]
         [--energy 1000] [--events 60] [--start 0,0,0] [--direction 1,0,0]
-        [--absorption-only] [--keys 1]
+        [--absorption-only] [--keys 1] [--plot PATH]
 
 Per-sensor p.e. of generator + sampled transport (counted before the charge response)
 against ``expected`` (4,096 rays, averaged over ``--keys`` ray keys); prints the totals,
@@ -37,6 +37,8 @@ def main() -> None:
     parser.add_argument("--absorption-only", action="store_true")
     parser.add_argument("--keys", type=int, default=1,
                         help="average the expected mode over this many ray keys")
+    parser.add_argument("--plot", default=None,
+                        help="write the sampled and expected maps and the pulls here")
     args = parser.parse_args()
     detector = pf.load_detector(args.detector)
     base = pf.default_params(detector)
@@ -70,6 +72,8 @@ def main() -> None:
         print(f"floor {floor:.0%}: chi2/ndf {np.mean(pulls ** 2):.2f} over {lit.sum()} sensors")
     pull = np.zeros_like(mean)
     pull[lit] = pulls
+    if args.plot:
+        _plot(detector, mean, expected, pull, args)
     offset = detector.sensor_positions - args.start
     cosine = offset @ direction / np.linalg.norm(offset, axis=1)
     edges = np.linspace(-1.0, 1.0, 41)
@@ -80,6 +84,31 @@ def main() -> None:
             print(f"cos [{edges[b - 1]:+.2f}, {edges[b]:+.2f}]: sampled {mean[chosen].sum():8.1f}"
                   f" expected {expected[chosen].sum():8.1f}  chi2 (3 %) "
                   f"{np.sum(pull[chosen] ** 2):6.1f} / {np.sum(chosen & lit)}")
+
+
+def _plot(detector, mean, expected, pull, args) -> None:
+    """Sampled and expected p.e. on one logarithmic scale and the pulls (3 % floor)."""
+    from matplotlib.colors import LogNorm, TwoSlopeNorm
+    from matplotlib.figure import Figure
+
+    from photonflow.viz.geometry_plot import draw_wall, save_figure
+    from photonflow.viz.projections import sensor_map
+
+    figure = Figure(figsize=(16.0, 5.5), layout="constrained")
+    axes = figure.subplots(1, 3)
+    projected = sensor_map(detector)
+    positive = np.concatenate([mean[mean > 0], expected[expected > 1e-3]])
+    norm = LogNorm(vmin=max(positive.min(), 1e-2), vmax=positive.max())
+    draw_wall(figure, axes[0], detector, projected, np.where(mean > 0, mean, np.nan),
+              f"sampled mean p.e. ({args.events} events)", "viridis", norm)
+    draw_wall(figure, axes[1], detector, projected, expected, "expected p.e.", "viridis", norm)
+    scale = min(max(float(np.max(np.abs(pull))), 1e-6), 5.0)  # pulls beyond 5 saturate
+    draw_wall(figure, axes[2], detector, projected, pull,
+              "(sampled - expected) / error (3 % floor)", "RdBu_r",
+              TwoSlopeNorm(vcenter=0.0, vmin=-scale, vmax=scale))
+    figure.suptitle(f"{args.detector}: {args.energy:g} MeV {args.particle} from"
+                    f" {args.start.tolist()} m along {args.direction.tolist()}")
+    save_figure(figure, args.plot)
 
 
 if __name__ == "__main__":

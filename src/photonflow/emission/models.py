@@ -14,6 +14,7 @@ from ..generator.materials import refractive_index, resolve_material
 from ..generator.particles import PARTICLES
 from ..generator.settings import GeneratorSettings
 from ..numerics import default_float_dtype
+from .scintillation import ScintillationModel, scintillation_model
 from .spline import SplineEmission, spline_emission
 
 #: Particles whose light is modelled with another's table: mu+ as mu- (the same light
@@ -38,20 +39,61 @@ def emission_model(particle: str, medium: str = "water", dtype=None) -> SplineEm
     Raises:
         ConfigError: no table ships for that particle and medium (one line).
     """
-    dtype = default_float_dtype() if dtype is None else np.dtype(dtype)
+    dtype = default_float_dtype() if dtype is None else jax.dtypes.canonicalize_dtype(dtype)
     return _model(SAME_LIGHT.get(particle, particle), medium, dtype.name)
 
 
+def scintillation_emission(particle: str, medium: str = "water",
+                           dtype=None) -> ScintillationModel | None:
+    """The shipped ``ScintillationModel`` of ``particle`` in ``medium`` (arrays of
+    ``dtype``), built once per process; None for a medium that does not scintillate.
+
+    Raises:
+        ConfigError: no table ships for that particle and medium (one line).
+    """
+    if resolve_material(medium).light_yield <= 0:
+        return None
+    dtype = default_float_dtype() if dtype is None else jax.dtypes.canonicalize_dtype(dtype)
+    return _scintillation(SAME_LIGHT.get(particle, particle), medium, dtype.name)
+
+
 @functools.cache
-def _model(particle: str, medium: str, dtype_name: str) -> SplineEmission:
+def _scintillation(particle: str, medium: str, dtype_name: str) -> ScintillationModel:
+    _check_shipped(particle, medium)
+    with jax.ensure_compile_time_eval():
+        return scintillation_model(shipped_table(particle, medium), np.dtype(dtype_name))
+
+
+def _check_shipped(particle: str, medium: str) -> None:
     if (particle, medium) not in SHIPPED:
         raise ConfigError(
             f"track.particle = {particle!r} in {medium!r}: no emission model ships for it"
             f" (shipped: {', '.join(f'{p} in {m}' for p, m in sorted(SHIPPED))})"
         )
+
+
+@functools.cache
+def _model(particle: str, medium: str, dtype_name: str) -> SplineEmission:
+    _check_shipped(particle, medium)
     table = shipped_table(particle, medium)
     with jax.ensure_compile_time_eval():  # built eagerly even when first asked in a trace
         return spline_emission(table, threshold_energy(particle, medium), np.dtype(dtype_name))
+
+
+def scintillation_spectral_factor(sensor, medium: str, points: int = 601) -> float:
+    """Mean relative spectral response (``photosensors.relative_response``) of ``sensor``
+    over the scintillation spectrum of ``medium`` (a Gaussian of mean ``emission_peak``
+    and width ``emission_width`` nm, as the generator draws it): the factor by which the
+    QE at the reference wavelength turns into the detection probability of a
+    scintillation photon."""
+    from ..photosensors import relative_response
+
+    material = resolve_material(medium)
+    wavelength = material.emission_peak + material.emission_width * np.linspace(-6, 6, points)
+    spectrum = np.exp(-0.5 * np.linspace(-6, 6, points) ** 2)
+    response = np.asarray(relative_response(sensor, wavelength), np.float64)
+    return float(np.trapezoid(response * spectrum, wavelength)
+                 / np.trapezoid(spectrum, wavelength))
 
 
 def cherenkov_spectral_factor(sensor, medium: str, points: int = 601) -> float:

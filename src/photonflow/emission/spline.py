@@ -153,14 +153,7 @@ class SplineEmission:
     def energy_weights(self, energy):
         """(K,) weights w_k with f(E) = sum_k w_k f_k for the natural cubic spline in
         log E; E (MeV) clamped to ``energy_range``."""
-        import interpax
-
-        log_e = jnp.clip(jnp.log(jnp.asarray(energy, self.log_energy.dtype)),
-                         self.log_energy[0], self.log_energy[-1])
-        identity = jnp.eye(self.log_energy.shape[0], dtype=self.log_energy.dtype)
-        with jax.numpy_dtype_promotion("standard"):  # interpax mixes int and float
-            return interpax.interp1d(log_e[None], self.log_energy, identity, method="cubic2",
-                                     extrap=True)[0]
+        return natural_energy_weights(self.log_energy, energy)
 
     def at(self, energy) -> EmissionSlice:
         """The model at kinetic energy ``energy`` (MeV, clamped to ``energy_range``)."""
@@ -194,6 +187,19 @@ class SplineEmission:
         return self.at(energy).density(s, cos)
 
 
+def natural_energy_weights(log_energy, energy):
+    """(K,) weights w_k with f(E) = sum_k w_k f_k for the natural cubic spline through
+    nodes at ``log_energy`` (K,) log(MeV); E (MeV) clamped to the nodes' range."""
+    import interpax
+
+    log_e = jnp.clip(jnp.log(jnp.asarray(energy, log_energy.dtype)), log_energy[0],
+                     log_energy[-1])
+    identity = jnp.eye(log_energy.shape[0], dtype=log_energy.dtype)
+    with jax.numpy_dtype_promotion("standard"):  # interpax mixes int and float
+        return interpax.interp1d(log_e[None], log_energy, identity, method="cubic2",
+                                 extrap=True)[0]
+
+
 #: Distance bins of the table merged into one knot interval of the model: 100 bins -> 25
 #: knots, 4 % of the extent each (a muon's range straggles by ~3-4 %), so the splines
 #: in x follow the light's shape, not the table's statistical wiggles, and the
@@ -204,6 +210,14 @@ MERGED_DISTANCE_BINS = 4
 UNMERGED_START = 4
 
 
+def distance_groups(bins: int) -> np.ndarray:
+    """Bin indices [g_0 = 0, ..., g_D = bins]: the table's distance bins [g_k, g_k+1)
+    that make one knot interval of the model (``UNMERGED_START``,
+    ``MERGED_DISTANCE_BINS``)."""
+    return np.concatenate([np.arange(UNMERGED_START),
+                           np.arange(UNMERGED_START, bins + 1, MERGED_DISTANCE_BINS)])
+
+
 def spline_emission(table: EmissionTable, threshold: float, dtype=None) -> SplineEmission:
     """Fit the spline model to ``table``; ``threshold``: the particle's Cherenkov threshold
     in the table's medium (kinetic MeV, below the table's first energy); arrays of
@@ -212,12 +226,13 @@ def spline_emission(table: EmissionTable, threshold: float, dtype=None) -> Splin
     import interpax
 
     energies = np.asarray(table.energies, np.float64)
-    if not 0.0 < threshold < energies[0]:
-        raise ValueError(f"threshold = {threshold:g} MeV: must lie below the table's first"
-                         f" energy {energies[0]:g} MeV")
+    if not 0.0 < threshold < energies[-1]:
+        raise ValueError(f"threshold = {threshold:g} MeV: must lie below the table's last"
+                         f" energy {energies[-1]:g} MeV")
+    table = _above(table, threshold)  # a scintillator's table starts below it
+    energies = np.asarray(table.energies, np.float64)
     bins = table.photons.shape[1]
-    groups = np.concatenate([np.arange(UNMERGED_START),
-                             np.arange(UNMERGED_START, bins + 1, MERGED_DISTANCE_BINS)])
+    groups = distance_groups(bins)
     table = _merge_distance_bins(table, groups)
     fraction = 0.5 * (groups[1:] + groups[:-1]) / bins
     cos = 0.5 * (table.cos_edges[1:] + table.cos_edges[:-1])
@@ -304,19 +319,37 @@ def _merge_distance_bins(table: EmissionTable, groups: np.ndarray) -> EmissionTa
     )
 
 
+def _above(table: EmissionTable, threshold: float) -> EmissionTable:
+    """``table`` without its energies at or below ``threshold`` (MeV): rows of no
+    Cherenkov light."""
+    keep = np.asarray(table.energies) > threshold
+    if keep.all():
+        return table
+    rows = {name: getattr(table, name)[keep] for name in (
+        "energies", "distance_edges", "photons", "time_offsets", "offset_sums",
+        "total_yield", "yield_spread", "track_length", "particles", "yield_error",
+        "angular_error")}
+    return dataclasses.replace(table, **rows)
+
+
 def _time_moments(table: EmissionTable) -> tuple[np.ndarray, np.ndarray]:
     """(E, D) mean and variance of the emission-time offset per distance bin (ns, ns^2),
-    from the table's exact sums; bins without light take the nearest lit bin's values
-    along s."""
-    photons = table.photons.sum(axis=2)  # (E, D)
-    safe = np.where(photons > 0, photons, 1.0)
-    mean = table.offset_sums[..., 0] / safe
-    variance = table.offset_sums[..., 1] / safe - mean**2
-    for row in range(photons.shape[0]):
-        lit = np.flatnonzero(photons[row] > 0)
+    from the table's exact sums (``offset_moments``)."""
+    return offset_moments(table.photons.sum(axis=2), table.offset_sums)
+
+
+def offset_moments(weight, sums) -> tuple[np.ndarray, np.ndarray]:
+    """(E, D) mean and variance (ns, ns^2) of a time offset from the (E, D) ``weight`` of
+    each distance bin and the (E, D, 2) sums of weight x offset and weight x offset^2;
+    bins of no weight take the nearest weighted bin's values along s."""
+    safe = np.where(weight > 0, weight, 1.0)
+    mean = sums[..., 0] / safe
+    variance = sums[..., 1] / safe - mean**2
+    for row in range(weight.shape[0]):
+        lit = np.flatnonzero(weight[row] > 0)
         if lit.size == 0:
             continue
-        nearest = lit[np.argmin(np.abs(np.arange(photons.shape[1])[:, None] - lit), axis=1)]
+        nearest = lit[np.argmin(np.abs(np.arange(weight.shape[1])[:, None] - lit), axis=1)]
         mean[row], variance[row] = mean[row, nearest], variance[row, nearest]
     return mean, np.maximum(variance, 0.0)
 

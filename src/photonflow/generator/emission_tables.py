@@ -31,6 +31,7 @@ from ..constants import SPEED_OF_LIGHT
 from ..errors import ConfigError, format_value
 from ..progress import with_progress
 from .generate import generate
+from .materials import resolve_material
 from .particles import PARTICLES
 from .settings import GeneratorSettings
 from .track import Track
@@ -76,6 +77,17 @@ class EmissionTable:
             angular profile), photons per particle per bin.
         per_energy: particles per batch (the whole count without an error target).
         settings: generator settings, seed and error target, as a JSON-able dict.
+        visible_energy: (E, D) mean Birks-quenched energy deposit per particle per
+            distance bin, MeV (each deposit spread uniformly along its segment, as its
+            scintillation light is); None for a medium that does not scintillate. In a
+            scintillating medium ``photons`` and the other photon fields hold the
+            Cherenkov light alone (the scintillation light is ``light_yield`` x this).
+        visible_offset_sums: (E, D, 2) per particle and distance bin, the sums over
+            deposits of visible energy x the deposit's time offset (mid-point time minus
+            mid-point z / c) and x its square (MeV ns, MeV ns^2); None likewise.
+        visible_total: (E,) mean visible energy per particle, MeV (all of it, in or out
+            of the distance range); None likewise.
+        visible_error: (E,) standard error of ``visible_total``, MeV; None likewise.
     """
 
     particle: str
@@ -95,6 +107,15 @@ class EmissionTable:
     angular_error: np.ndarray
     per_energy: int
     settings: dict
+    visible_energy: np.ndarray | None = None
+    visible_offset_sums: np.ndarray | None = None
+    visible_total: np.ndarray | None = None
+    visible_error: np.ndarray | None = None
+
+    @property
+    def scintillating(self) -> bool:
+        """Whether the table holds the medium's visible energy deposit (a scintillator)."""
+        return self.visible_energy is not None
 
     def profile_error(self) -> np.ndarray:
         """(E,) statistical error of the angular profile: the summed standard errors of
@@ -105,8 +126,16 @@ class EmissionTable:
 
 #: Particles of the pilot run that sets an energy's distance range (``light_extent``).
 PILOT_PARTICLES = 8
+#: ... in a scintillator, where the range follows the visible energy's tail (an
+#: electron's bremsstrahlung photons, a few per particle).
+SCINTILLATOR_PILOT_PARTICLES = 64
 #: The distance range is this multiple of the pilot's 99.9 % light quantile along z.
 EXTENT_MARGIN = 1.15
+#: In a scintillator, the distance range covers this quantile of the visible energy's
+#: deposits along z (weighted by their energy; not 0.999: an electron's few
+#: bremsstrahlung photons deposit ~1 % of its energy up to ten times further than its
+#: track, light the model spreads over the range instead).
+VISIBLE_QUANTILE = 0.98
 #: Smallest distance range, m.
 MINIMUM_EXTENT = 0.01
 
@@ -115,19 +144,74 @@ def light_extent(particle, energy, seed, medium, settings) -> float:
     """Distance range (m) of one energy's table: ``EXTENT_MARGIN`` x the 99.9 % quantile
     of the emission points' z over ``PILOT_PARTICLES`` particles (seeds: children of the
     ``SeedSequence`` ``seed`` spawned before the table's own particles), at least
-    ``MINIMUM_EXTENT``. Bins then follow the light's extent at every energy (a 60 MeV
-    muon's ~0.1 m as well as a 5 GeV muon's ~20 m), so the model can interpolate in
-    energy at a fixed fraction of the extent."""
-    z = [generate(Track(particle, (0, 0, 0), (0, 0, 1), energy), child, medium,
-                  settings).position[:, 2] for child in seed.spawn(PILOT_PARTICLES)]
-    z = np.concatenate(z).astype(np.float64)
-    quantile = float(np.quantile(z, 0.999)) if z.size else 0.0
+    ``MINIMUM_EXTENT``. In a scintillator, the ``VISIBLE_QUANTILE`` of the deposits' far
+    ends weighted by their visible energy instead (the scintillation light, ~98 % of
+    the light; a quantile of the few Cherenkov photons let one hard bremsstrahlung
+    photon converting metres away stretch a muon's range twofold), over
+    ``SCINTILLATOR_PILOT_PARTICLES`` particles. Bins then follow the light's extent at
+    every energy (a 60 MeV muon's ~0.1 m as well as a 5 GeV muon's ~20 m), so the model
+    can interpolate in energy at a fixed fraction of the extent."""
+    material, scintillating = cherenkov_material(medium)
+    z, ends, visible = [], [], []
+    pilots = SCINTILLATOR_PILOT_PARTICLES if scintillating else PILOT_PARTICLES
+    for child in seed.spawn(pilots):
+        event = generate(Track(particle, (0, 0, 0), (0, 0, 1), energy), child, material,
+                         settings)
+        z.append(event.position[:, 2].astype(np.float64))
+        ends.append(np.maximum(event.deposits.start[:, 2], event.deposits.end[:, 2]))
+        visible.append(event.deposits.visible_energy)
+    if scintillating:
+        quantile = _weighted_quantile(np.concatenate(ends), np.concatenate(visible),
+                                      VISIBLE_QUANTILE)
+    else:
+        z = np.concatenate(z)
+        quantile = float(np.quantile(z, 0.999)) if z.size else 0.0
     return max(MINIMUM_EXTENT, EXTENT_MARGIN * quantile)
+
+
+def _weighted_quantile(values, weights, q: float) -> float:
+    """The ``q`` quantile of ``values`` weighted by ``weights`` (0 without weight)."""
+    order = np.argsort(values)
+    cumulative = np.cumsum(np.asarray(weights, np.float64)[order])
+    if cumulative.size == 0 or cumulative[-1] <= 0:
+        return 0.0
+    return float(np.asarray(values, np.float64)[order][np.searchsorted(cumulative,
+                                                                       q * cumulative[-1])])
 
 
 #: The per-energy results of a build, in the order ``_energy_row`` returns them.
 ROW_FIELDS = ("distance_edges", "photons", "time_offsets", "offset_sums", "total_yield",
               "yield_spread", "track_length", "particles", "yield_error", "angular_error")
+#: ... followed, in a scintillating medium, by these.
+SCINTILLATION_FIELDS = ("visible_energy", "visible_offset_sums", "visible_total",
+                        "visible_error")
+
+
+def cherenkov_material(medium):
+    """(the ``Material`` of ``medium`` without scintillation, whether ``medium``
+    scintillates): tables follow the Cherenkov photons and tabulate the scintillator's
+    visible energy deposit instead of its millions of scintillation photons."""
+    material = resolve_material(medium)
+    if material.light_yield > 0:
+        return dataclasses.replace(material, light_yield=0.0), True
+    return material, False
+
+
+def _row_fields(scintillating: bool) -> tuple[str, ...]:
+    return ROW_FIELDS + (SCINTILLATION_FIELDS if scintillating else ())
+
+
+def segment_histogram(low, high, weights, edges) -> np.ndarray:
+    """Histogram in ``edges`` of segments [low, high] (z of their ends, m) each carrying
+    ``weights`` spread uniformly along it (a point segment, low == high, falls in its
+    bin): sum_i w_i x (the share of segment i inside each bin)."""
+    low, high = np.minimum(low, high), np.maximum(low, high)
+    length = high - low
+    point = length <= 0
+    share = np.clip((edges[None, :] - low[:, None]) / np.where(point, 1.0, length)[:, None],
+                    0.0, 1.0)
+    share = np.where(point[:, None], (edges[None, :] >= low[:, None]).astype(float), share)
+    return weights @ np.diff(share, axis=1)
 
 
 def _energy_row(particle, energy, per_energy, seed, medium, settings, edges,
@@ -148,11 +232,26 @@ def _energy_row(particle, energy, per_energy, seed, medium, settings, edges,
     offset_sums = np.zeros((len(distance_edges) - 1, 2))
     angular_squares = np.zeros(len(cos_edges) - 1)
     yields, lengths = [], []
+    material, scintillating = cherenkov_material(medium)
+    visible = np.zeros(len(distance_edges) - 1)
+    visible_sums = np.zeros((len(distance_edges) - 1, 2))
+    visible_totals = []
     scale = settings.yield_scale
     while True:
         for child in seed.spawn(per_energy):
-            event = generate(Track(particle, (0, 0, 0), (0, 0, 1), energy), child, medium,
+            event = generate(Track(particle, (0, 0, 0), (0, 0, 1), energy), child, material,
                              settings)
+            if scintillating:
+                deposits = event.deposits
+                low, high = deposits.start[:, 2], deposits.end[:, 2]
+                middle = 0.5 * (deposits.start_time + deposits.end_time) \
+                    - 0.5 * (low + high) / SPEED_OF_LIGHT
+                energy_in = deposits.visible_energy.astype(np.float64)
+                visible += segment_histogram(low, high, energy_in, distance_edges)
+                for k, power in enumerate((middle, middle * middle)):
+                    visible_sums[:, k] += segment_histogram(low, high, energy_in * power,
+                                                            distance_edges)
+                visible_totals.append(float(np.sum(energy_in)))
             z = event.position[:, 2].astype(np.float64)
             cos = event.direction[:, 2].astype(np.float64)
             offset = event.time.astype(np.float64) - z / SPEED_OF_LIGHT
@@ -176,8 +275,12 @@ def _energy_row(particle, energy, per_energy, seed, medium, settings, edges,
         precise = target_error is None or yield_error <= target_error * mean_yield
         if precise or max_per_energy is None or n + per_energy > max_per_energy:
             break
-    return (distance_edges, photons / n, times / n, offset_sums / n, mean_yield,
-            float(np.std(yields)), float(np.mean(lengths)), n, yield_error, angular_error)
+    row = (distance_edges, photons / n, times / n, offset_sums / n, mean_yield,
+           float(np.std(yields)), float(np.mean(lengths)), n, yield_error, angular_error)
+    if not scintillating:
+        return row
+    visible_error = float(np.std(visible_totals, ddof=1) / np.sqrt(n)) if n > 1 else np.inf
+    return row + (visible / n, visible_sums / n, float(np.mean(visible_totals)), visible_error)
 
 
 def build_table(
@@ -245,14 +348,15 @@ def build_table(
     if target_error is not None:
         meta["target_error"] = float(target_error)
         meta["max_per_energy"] = int(max_per_energy)
-    table = _empty_table(particle, medium, energies, edges, per_energy, meta)
+    table = _empty_table(particle, medium, energies, edges, per_energy, meta,
+                         scintillating=cherenkov_material(medium)[1])
     done = _resumed_rows(resume, table) if resume is not None else set()
     children = np.random.SeedSequence(seed).spawn(len(energies))
     rows = [i for i in range(len(energies)) if i not in done]
     for i in with_progress(rows, f"{particle} table", show=progress):
         row = _energy_row(particle, energies[i], per_energy, children[i], medium, settings,
                           edges, target_error, max_per_energy, check)
-        for field, value in zip(ROW_FIELDS, row, strict=True):
+        for field, value in zip(_row_fields(table.scintillating), row, strict=True):
             getattr(table, field)[i] = value
         done.add(i)
         if resume is not None:
@@ -269,8 +373,13 @@ def _check_energies(energies) -> np.ndarray:
     return values
 
 
-def _empty_table(particle, medium, energies, edges, per_energy, settings) -> EmissionTable:
+def _empty_table(particle, medium, energies, edges, per_energy, settings,
+                 scintillating=False) -> EmissionTable:
     n, d, a, t = len(energies), DISTANCE_BINS, len(edges[1]) - 1, len(edges[2]) - 1
+    extra = {}
+    if scintillating:
+        extra = {"visible_energy": np.zeros((n, d)), "visible_offset_sums": np.zeros((n, d, 2)),
+                 "visible_total": np.zeros(n), "visible_error": np.zeros(n)}
     return EmissionTable(
         particle=particle,
         medium=medium,
@@ -290,6 +399,7 @@ def _empty_table(particle, medium, energies, edges, per_energy, settings) -> Emi
         angular_error=np.zeros((n, a)),
         per_energy=per_energy,
         settings=settings,
+        **extra,
     )
 
 
@@ -324,7 +434,7 @@ def save_table(path: str | Path, table: EmissionTable, completed: Sequence[int] 
         handle.attrs["per_energy"] = table.per_energy
         handle.attrs["settings"] = json.dumps(table.settings)
         handle.attrs["completed"] = np.asarray(completed, dtype=np.int64)
-        for name in _ARRAYS:
+        for name in _ARRAYS + (SCINTILLATION_FIELDS if table.scintillating else ()):
             handle.create_dataset(name, data=np.asarray(getattr(table, name)), compression="gzip")
     os.replace(temporary, path)
 
@@ -350,6 +460,8 @@ def _read(path) -> tuple[EmissionTable, list[int]]:
         if version != SCHEMA_VERSION:
             raise ConfigError(f"{path}: schema_version = {version}, expected {SCHEMA_VERSION}")
         arrays = {name: np.asarray(handle[name]) for name in _ARRAYS}
+        arrays.update({name: np.asarray(handle[name]) for name in SCINTILLATION_FIELDS
+                       if name in handle})
         table = EmissionTable(
             particle=str(handle.attrs["particle"]),
             medium=str(handle.attrs["medium"]),
@@ -376,14 +488,15 @@ def _resumed_rows(path, table: EmissionTable) -> set[int]:
     if not same:
         raise ConfigError(f"{path}: holds a different build; remove it or choose another file")
     for i in completed:
-        for name in ROW_FIELDS:
+        for name in _row_fields(table.scintillating):
             getattr(table, name)[i] = getattr(old, name)[i]
     return set(completed)
 
 
-#: Tables shipped inside the package (built by ``photonflow tables build`` with the
-#: defaults, ``--per-energy 20 --yield-scale 0.2``), by (particle, medium).
-SHIPPED = {("mu-", "water"): "emission_mu-_water.h5", ("e-", "water"): "emission_e-_water.h5"}
+#: Tables shipped inside the package (built by ``scripts/build_emission_tables.py``), by
+#: (particle, medium).
+SHIPPED = {(particle, medium): f"emission_{particle}_{medium}.h5"
+           for particle in ("mu-", "e-") for medium in ("water", "scintillator")}
 
 
 def shipped_table(particle: str, medium: str = "water") -> EmissionTable:

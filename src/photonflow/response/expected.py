@@ -8,7 +8,8 @@ the individual sensor. ``expected_response`` applies those, in one place:
 
 - charge x ``efficiency`` (per sensor, relative);
 - component means + ``time_offset`` (per sensor, ns);
-- component widths sqrt(sigma^2 + ``tts``^2) (transit-time spread, ns);
+- component widths sqrt(sigma^2 + ``tts``^2) (transit-time spread, ns; a component's
+  exponential delay ``time_tau`` is kept);
 - the dark rate (Hz) and single-p.e. width (p.e.) attached for the likelihood.
 
 The mixture weights are the shares of each component in the sensor's light and do not
@@ -43,6 +44,8 @@ class SensorLight:
         residual_weight: scalar, expected photons still alive at the bounce cap (light
             not followed).
         window: readout window (t0, t1), ns (static), or None.
+        time_tau: (N, K) decay times of exponentially modified components (ns; 0 for a
+            Gaussian one: ``Prediction.time_tau``), or None: all Gaussian.
     """
 
     charge: jax.Array
@@ -50,6 +53,7 @@ class SensorLight:
     time_variance: jax.Array
     residual_weight: jax.Array
     window: tuple[float, float] | None = static_field(default=None)
+    time_tau: jax.Array | None = None
 
 
 def expected_response(light: SensorLight, params: Params) -> Prediction:
@@ -72,4 +76,5 @@ def expected_response(light: SensorLight, params: Params) -> Prediction:
         dark_rate=params.dark_rate,
         spe_width=params.spe_width,
         window=light.window,
+        time_tau=light.time_tau,
     )

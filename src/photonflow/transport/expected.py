@@ -27,8 +27,8 @@ from weakref import WeakKeyDictionary
 import jax
 import jax.numpy as jnp
 
-from ..emission import emission_model
-from ..emission.models import cherenkov_spectral_factor
+from ..emission import emission_model, scintillation_emission
+from ..emission.models import cherenkov_spectral_factor, scintillation_spectral_factor
 from ..errors import ConfigError, format_value
 from ..generator import Track
 from ..geometry.detector import Detector
@@ -172,18 +172,25 @@ def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
     medium = detector_medium(detector)
 
     @functools.cache
-    def spectral() -> float:  # only tracks need it (and a known sensor model)
-        return cherenkov_spectral_factor(principal_sensor_model(detector), medium)
+    def spectral() -> tuple[float, float]:  # only tracks need it (and a known sensor model)
+        sensor = principal_sensor_model(detector)
+        return (cherenkov_spectral_factor(sensor, medium),
+                scintillation_spectral_factor(sensor, medium))
 
     def predict(params: Params, source, key=None, reference=None) -> Prediction:
         """Expected p.e. and time mixture per sensor (see ``expected``); no checks."""
         if isinstance(source, Track):
             model = emission_model(source.particle, medium, dtype)
+            scintillator = scintillation_emission(source.particle, medium, dtype)
+            cherenkov_factor, scintillation_factor = spectral()
+            scintillation = None if scintillator is None else (scintillator,
+                                                               cast(scintillation_factor))
             if reference is not None:
                 reference = jax.tree.map(cast, reference)
             return track_expected_jit(
                 sensors, jax.tree.map(cast, params), jax.tree.map(cast, source), model,
-                cast(spectral()), key, reference, shape=detector.shape, config=config,
+                cast(cherenkov_factor), key, reference, scintillation,
+                shape=detector.shape, config=config,
             )
         if reference is not None:
             raise ConfigError("reference: only a Track source takes a reference track")

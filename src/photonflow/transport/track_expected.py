@@ -9,9 +9,12 @@ track (``track_rays.TrackEmitter``: their geometry fixed by a reference track, s
 indirect light is smooth in the track). The light is a mixture of C + n_bounces arrival-time
 components per sensor: C for the direct light (``track_direct.DIRECT_COMPONENTS``, each
 moment-matched to a run of the quadrature's nodes), then one per bounce order as for
-point sources; the sensor response (``response.expected_response``) then
-applies efficiencies, offsets and the transit-time spread. Lengths m, times ns,
-energies MeV.
+point sources, but exponentially modified (``_skewed_indirect``: scattered light starts
+sharply and trails off); in a scintillator, its isotropic scintillation light
+(``emission.ScintillationModel``) through the same quadrature and rays, each of its
+components split into one exponentially modified component per decay time. The sensor
+response (``response.expected_response``) then applies efficiencies, offsets and the
+transit-time spread. Lengths m, times ns, energies MeV.
 """
 
 from __future__ import annotations
@@ -21,56 +24,158 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from ..constants import SPEED_OF_LIGHT
 from ..emission import SplineEmission
 from ..geometry.sensor_arrays import Sensors
-from ..numerics import where
+from ..numerics import safe_sqrt, where
 from ..prediction import Prediction
 from ..response.expected import SensorLight, expected_response
 from .indirect import indirect_light_jit
-from .track_direct import track_direct_light
-from .track_rays import TrackEmitter
+from .track_direct import DIRECT_COMPONENTS, mixed_moments, track_direct_light
+from .track_rays import TrackEmitter, kernel_width
 
 
 def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, spectral,
-                       key=None, reference=None, *, shape, config):
+                       key=None, reference=None, scintillation=None, *, shape, config):
     """The ``SensorLight`` of one track (a ``Track`` of one particle, leaves of the
     computation's dtype): (N, C + n_bounces) p.e. of sensors of efficiency 1 (C direct
     components, ``track_direct.DIRECT_COMPONENTS``, then by the order of the last
-    vertex), with mean arrival times and variances (ns,
-    ns^2). ``spectral``: the sensor's mean relative spectral response over the emitted
-    spectrum (``cherenkov_spectral_factor``), which scales the QE at the reference
-    wavelength; ``key`` fixes the rays (None: ``jax.random.key(0)``); ``shape`` and
-    ``config`` static; ``reference``: the track that fixes the indirect light's rays
-    (``track_rays``; None: the track itself, held fixed). Traced inline."""
+    vertex, the indirect ones with exponential tails: ``_skewed_indirect``), with mean
+    arrival times, variances and decay times (ns, ns^2, ns). ``spectral``: the sensor's
+    mean relative spectral response over the emitted spectrum
+    (``cherenkov_spectral_factor``), which scales the QE at the reference wavelength;
+    ``key`` fixes the rays (None: ``jax.random.key(0)``); ``shape`` and ``config``
+    static; ``reference``: the track that fixes the indirect light's rays
+    (``track_rays``; None: the track itself, held fixed). ``scintillation``: None, or
+    (the medium's ``ScintillationModel``, its ``scintillation_spectral_factor``): the
+    isotropic scintillation light is added as ``SCINTILLATION_COMPONENTS`` x (number of
+    decay times) exponentially modified components (``time_tau``). Traced inline."""
     key = jax.random.key(0) if key is None else key
     rays_from = jax.tree.map(jax.lax.stop_gradient, track if reference is None else reference)
-    emission = model.at(track.energy)
-    params = params.replace(quantum_efficiency=params.quantum_efficiency * spectral)
     direction = track.direction / jnp.linalg.norm(track.direction)
     length = _inside_length(shape, track.position, direction)
+    emission = model.at(track.energy)
+    rays_emission = emission if reference is None else model.at(rays_from.energy)
+    charges, means, variances, residual, start = _emitted_light(
+        sensors, params.replace(quantum_efficiency=params.quantum_efficiency * spectral),
+        track, direction, length, emission, rays_emission, rays_from, key,
+        shape=shape, config=config)
+    onset = earliest_arrival(sensors, params, track.position, direction, track.time, length)
+    charges, means, variances, tau = _skewed_indirect(charges, means, variances, onset)
+    if scintillation is not None:
+        scintillator, factor = scintillation
+        light = scintillator.at(track.energy)
+        rays_light = light if reference is None else scintillator.at(rays_from.energy)
+        parts = _emitted_light(
+            sensors, params.replace(quantum_efficiency=params.quantum_efficiency * factor),
+            track, direction, length, light, rays_light, rays_from,
+            jax.random.fold_in(key, 1), shape=shape, config=config)
+        delayed = _decayed(*parts[:3], scintillator.decay_times, scintillator.decay_weights)
+        tau = jnp.concatenate([tau, delayed[3]], axis=1)
+        charges, means, variances = (jnp.concatenate([a, b], axis=1) for a, b in
+                                     zip((charges, means, variances), delayed[:3],
+                                         strict=True))
+        residual = residual + parts[3]
+    has_light = charges > 0
+    return SensorLight(
+        charge=charges,
+        time_mean=where(has_light, means, start[:, None]),
+        time_variance=where(has_light, variances, 0.0),
+        residual_weight=residual,
+        window=tuple(float(x) for x in config.window),
+        time_tau=tau,
+    )
+
+
+#: Share kappa of an indirect component's spread carried by its exponential delay
+#: (skewness 2 kappa^3). Chosen on the all-photon arrival times of SK muons (20 events,
+#: sensors of < 1 expected p.e., whose light is mostly indirect; studies/
+#: track-light-validation.md): PIT chi2/ndf 97 for Gaussians (kappa 0), 72 at 0.6, 60 at
+#: 0.8, 192 at 1 (pure exponential).
+INDIRECT_TAIL_SHARE = 0.8
+#: Indirect components whose exponential delay would be below this (ns) stay Gaussian.
+SHORTEST_TAIL = 0.1
+
+
+def earliest_arrival(sensors: Sensors, params, position, direction, time, length):
+    """(N,) the earliest time (ns) any light of the track can reach each sensor centre:
+    min over the track's points s in [0, length] (m) of t0 + s / c + n_g |p - x(s)| / c,
+    reached where the sensor is seen at cos = 1 / n_g from the track (light made later
+    along the track, delayed at emission, or bent by a scatter or a reflection only
+    comes later)."""
+    offset = sensors.positions - position
+    along = offset @ direction
+    across = safe_sqrt(jnp.sum(offset * offset, axis=1) - along * along)
+    n_g = params.group_index
+    s = jnp.clip(along - across / safe_sqrt(n_g * n_g - 1.0), 0.0, length)
+    return time + (s + n_g * safe_sqrt((along - s) ** 2 + across * across)) / SPEED_OF_LIGHT
+
+
+def _skewed_indirect(charge, mean, variance, onset):
+    """The indirect components (after the ``DIRECT_COMPONENTS``) as exponentially
+    modified Gaussians of the same mean, starting no earlier than ``onset`` (N,) ns
+    (``earliest_arrival``): scattered and reflected light starts sharply and trails off,
+    and a Gaussian puts a share of it before any light can arrive. Delay tau =
+    min(kappa sd, mean - onset) (``INDIRECT_TAIL_SHARE``), Gaussian width
+    sqrt(variance - tau^2), mean - tau; before the transit-time spread. Returns
+    (charge, mean, variance, tau) (N, K)."""
+    indirect = slice(DIRECT_COMPONENTS, None)
+    spread = safe_sqrt(variance[:, indirect])
+    delay = jnp.clip(mean[:, indirect] - onset[:, None], 0.0, INDIRECT_TAIL_SHARE * spread)
+    tail = delay > SHORTEST_TAIL
+    tau = where(tail, delay, 0.0)
+    mean = mean.at[:, indirect].add(-tau)
+    variance = variance.at[:, indirect].set(jnp.maximum(variance[:, indirect] - tau * tau, 0.0))
+    return charge, mean, variance, jnp.concatenate([jnp.zeros_like(mean[:, :DIRECT_COMPONENTS]),
+                                                    tau], axis=1)
+
+
+#: Transport components of the scintillation light before its decay delays: the direct
+#: light's components merged in pairs, and its indirect light as one.
+SCINTILLATION_COMPONENTS = DIRECT_COMPONENTS // 2 + 1
+
+
+def _emitted_light(sensors, params, track, direction, length, emission, rays_emission,
+                   rays_from, key, *, shape, config):
+    """(charge, mean, variance) (N, C + n_bounces) of the light of one emission slice
+    (direct components, then by bounce order), the residual weight of its rays and
+    the sensors' mean direct arrival time (N,) ns (the time of light from the track's
+    start where there is no direct light)."""
     charge, mean, variance = track_direct_light(sensors, params, track.position, direction,
                                                 track.time, emission, length)
     total = jnp.sum(charge, axis=1)
-    reference = jnp.sum(charge * mean, axis=1) / where(total > 0, total, 1.0)
-    reference = where(total > 0, reference, mean[:, 0])
-    rays_emission = emission if reference is None else model.at(rays_from.energy)
+    start = jnp.sum(charge * mean, axis=1) / where(total > 0, total, 1.0)
+    start = where(total > 0, start, mean[:, 0])
     emitter = TrackEmitter(track.position, direction, track.time, emission, length,
                            rays_from.position,
                            rays_from.direction / jnp.linalg.norm(rays_from.direction),
-                           rays_emission)  # held fixed by TrackEmitter
-    indirect = indirect_light_jit(sensors, params, emitter, reference, key, shape=shape,
+                           rays_emission, spread=kernel_width(shape))  # held fixed
+    indirect = indirect_light_jit(sensors, params, emitter, start, key, shape=shape,
                                   config=config)
     charges = jnp.concatenate([charge, indirect.charge.T], axis=1)  # (N, C + n_bounces)
     means = jnp.concatenate([mean, indirect.time_mean.T], axis=1)
     variances = jnp.concatenate([variance, indirect.time_variance.T], axis=1)
-    has_light = charges > 0
-    return SensorLight(
-        charge=charges,
-        time_mean=where(has_light, means, reference[:, None]),
-        time_variance=where(has_light, variances, 0.0),
-        residual_weight=indirect.residual_weight,
-        window=tuple(float(x) for x in config.window),
-    )
+    return charges, means, variances, indirect.residual_weight, start
+
+
+def _decayed(charge, mean, variance, decay_times, decay_weights):
+    """The scintillation light's components (N, C + n_bounces) merged into
+    ``SCINTILLATION_COMPONENTS`` (moment-matched), each split into one exponentially
+    modified component per decay time: (charge, mean, variance, tau) (N, 3 x ...)."""
+    pairs = [mixed_moments(charge[:, k:k + 2], mean[:, k:k + 2], variance[:, k:k + 2], axis=1)
+             for k in range(0, DIRECT_COMPONENTS, 2)]
+    pairs.append(mixed_moments(charge[:, DIRECT_COMPONENTS:], mean[:, DIRECT_COMPONENTS:],
+                        variance[:, DIRECT_COMPONENTS:], axis=1))
+    merged = [jnp.stack(x, axis=1) for x in zip(*pairs, strict=True)]  # 3 x (N, S)
+    lit = merged[0] > 0
+    merged[1] = where(lit, merged[1], mean[:, :1])
+    outputs = [[], [], [], []]
+    for tau, weight in zip(decay_times, decay_weights, strict=True):
+        outputs[0].append(weight * merged[0])
+        outputs[1].append(merged[1])
+        outputs[2].append(merged[2])
+        outputs[3].append(jnp.full_like(merged[0], tau))
+    return tuple(jnp.concatenate(x, axis=1) for x in outputs)
 
 
 def _inside_length(shape, position, direction):
@@ -84,9 +189,10 @@ def _inside_length(shape, position, direction):
 
 @functools.partial(jax.jit, static_argnames=("shape", "config"))
 def track_expected_jit(sensors: Sensors, params, track, model: SplineEmission, spectral,
-                       key=None, reference=None, *, shape, config) -> Prediction:
+                       key=None, reference=None, scintillation=None, *, shape,
+                       config) -> Prediction:
     """``expected`` of one track on arrays (``track_sensor_light`` then the sensor
     response); ``shape`` and ``config`` static. Returns a ``Prediction``."""
     light = track_sensor_light(sensors, params, track, model, spectral, key, reference,
-                               shape=shape, config=config)
+                               scintillation, shape=shape, config=config)
     return expected_response(light, params)

@@ -13,9 +13,11 @@ the fraction x = s / S_R of the extent from the slice's marginal in x (mixed wit
 of a uniform density over [-3 w, 1.5 S_R + 3 w] / S_R, w the width of the soft ends
 below, so that a longer track than the reference is covered), the cosine to d_R from its
 angular profile mixed with 20 % of a uniform one (so that no angle is starved), a
-uniform azimuth, and a lateral offset from a 2-D Gaussian of width sigma =
-``SPREAD`` m: origin x_R + s d_R + offset. Target (the track T being predicted): its
-emission smeared by the same kernel, rho_T(s_T, cos_T) / 2 pi x K_sigma(r_T) x
+uniform azimuth, and a lateral offset from a 2-D Gaussian of width sigma
+(``kernel_width``: 0.25 m, or the detector's extent / 400 where that is less: 5 mm in
+TAO, whose sphere focuses its mirror images of the track onto a few tiles): origin
+x_R + s d_R + offset. Target (the track T being predicted): its emission smeared by the
+same kernel, rho_T(s_T, cos_T) / 2 pi x K_sigma(r_T) x
 Phi(s_T / sigma) Phi((L_T - s_T) / sigma), with s_T, r_T and cos_T the ray's origin
 and direction in T's frame, L_T the light's extent up to the wall, Phi the normal CDF
 and sigma replaced by w = min(sigma, L_T / 8) in it (soft ends of the track, narrow
@@ -46,8 +48,17 @@ from .rays import shifted_lattice
 UNIFORM_SHARE = 0.2
 #: Share of the uniform density in the proposal along the track.
 UNIFORM_ALONG = 0.1
-#: Width sigma (m) of the kernel that smears the track's light for its rays.
+#: Width sigma (m) of the kernel that smears the track's light for its rays: ``SPREAD``,
+#: or ``SPREAD_SHARE`` of the detector's extent in a smaller detector (a curved wall's
+#: mirror images of the track, e.g. the focus of TAO's sphere, blur with the kernel).
 SPREAD = 0.25
+SPREAD_SHARE = 1.0 / 400.0
+
+
+def kernel_width(shape) -> float:
+    """The kernel width sigma (m) for a detector ``shape``: min(``SPREAD``,
+    ``SPREAD_SHARE`` x its extent)."""
+    return min(SPREAD, SPREAD_SHARE * float(shape.extent)) if shape.has_walls else SPREAD
 #: The proposal along the track reaches this many times the reference's extent (a track
 #: of higher energy than its reference emits further).
 REACH = 1.5
@@ -63,6 +74,7 @@ class TrackEmitter:
         length: light is emitted only for s <= length, m (the distance to the wall).
         reference_position, reference_direction, reference_emission: the reference
             track that fixes the rays' geometry (used through ``stop_gradient``).
+        spread: the kernel width sigma, m (static; ``kernel_width``).
         mirror_quadrature: False (static): no first-order mirror quadrature.
     """
 
@@ -74,6 +86,7 @@ class TrackEmitter:
     reference_position: jax.Array
     reference_direction: jax.Array
     reference_emission: EmissionSlice
+    spread: float = static_field(default=SPREAD)
     mirror_quadrature: bool = static_field(default=False)
 
     def leaving(self, key, count: int, dtype) -> dict:
@@ -85,7 +98,7 @@ class TrackEmitter:
         lateral = jax.random.normal(spread_key, (count, 2), dtype)
         fixed, start, axis = jax.lax.stop_gradient(
             (self.reference_emission, self.reference_position, self.reference_direction))
-        pad = 3.0 * _end_width(fixed.extent) / fixed.extent
+        pad = 3.0 * _end_width(fixed.extent, self.spread) / fixed.extent
         x_grid, x_pdf = _padded_density(fixed.fraction, -pad, REACH + pad,
                                         fixed.fraction_profile())
         x_pdf = (1.0 - UNIFORM_ALONG) * x_pdf + UNIFORM_ALONG / (REACH + 2.0 * pad)
@@ -95,7 +108,7 @@ class TrackEmitter:
         cos, q_cos = _inverse_cdf(c_grid, c_pdf, u[0])
         first, second = orthonormal_basis(axis)
         origins = start + (x * fixed.extent)[:, None] * axis \
-            + SPREAD * (lateral[:, :1] * first + lateral[:, 1:] * second)
+            + self.spread * (lateral[:, :1] * first + lateral[:, 1:] * second)
         directions = deflect(jnp.broadcast_to(axis, (count, 3)), cos, 2.0 * math.pi * u[1])
         kernel_reference = jnp.exp(-0.5 * jnp.sum(lateral * lateral, axis=1))
         proposal = q_x / fixed.extent * q_cos * kernel_reference
@@ -105,11 +118,11 @@ class TrackEmitter:
         s = offset @ self.direction
         across2 = jnp.maximum(jnp.sum(offset * offset, axis=1) - s * s, 0.0)
         extent = jnp.minimum(self.emission.extent, self.length)
-        width = _end_width(extent)
+        width = _end_width(extent, self.spread)
         ends = ndtr(s / width) * ndtr((extent - s) / width)
         inside = jnp.clip(s, 0.0, extent)
         target = self.emission.density(inside, directions @ self.direction) * ends \
-            * jnp.exp(-0.5 * across2 / SPREAD**2)
+            * jnp.exp(-0.5 * across2 / self.spread**2)
         weight = jnp.where(proposal > 0, target / jnp.where(proposal > 0, proposal, 1.0), 0.0)
         mean_offset, _ = self.emission.time_moments(inside)
         time = self.time + s / SPEED_OF_LIGHT + mean_offset
@@ -117,10 +130,11 @@ class TrackEmitter:
                 "time": time}
 
 
-def _end_width(extent):
-    """Width (m) of the soft ends of a track's light: ``SPREAD``, or an eighth of the
-    extent for short tracks (so that the soft ends keep the light's total)."""
-    return jnp.minimum(SPREAD, extent / 8.0)
+def _end_width(extent, spread):
+    """Width (m) of the soft ends of a track's light: the kernel width ``spread``, or an
+    eighth of the extent for short tracks (so that the soft ends keep the light's
+    total)."""
+    return jnp.minimum(spread, extent / 8.0)
 
 
 def _padded_density(knots, low, high, values):

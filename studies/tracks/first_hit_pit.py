@@ -1,0 +1,132 @@
+"""First-hit times of sampled track events against the expected first-hit distribution
+(studies/track-light-validation.md):
+
+    python studies/tracks/first_hit_pit.py [--detector SK] [--particle mu-]
+        [--energy 1000] [--events 200] [--start 0,0,0] [--direction 1,0,0] [--keys 1]
+
+Events from the generator + sampled transport, each detected photon's time smeared by the
+transit-time spread and shifted by its sensor's time offset; for every sensor j that
+detected n_j >= 1 photons, the probability-integral transform of its first-hit time t
+given n_j,
+
+    PIT = 1 - (1 - F_j(t))^n_j,
+
+with F_j the expected mode's arrival-time distribution (averaged over ``--keys`` ray
+keys): flat if the predicted shape of the arrival times is right. Printed: the histogram
+(20 bins), its chi2 against flat, the same for sensors of expected charge < 1, 1-10 and
+> 10 p.e., and, for comparison, the PIT given the expected charge mu_j instead of n_j,
+(1 - exp(-mu_j F_j(t))) / (1 - exp(-mu_j)) (the likelihood's first-hit term), which also
+feels any overdispersion of the counts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import photonflow as pf
+from photonflow.progress import with_progress
+from photonflow.transport.sampled import sample_photon_bundle
+from photonflow.transport.tracks import spectral_params, track_light, track_photons
+
+BINS = 20
+
+
+def _vector(text: str) -> np.ndarray:
+    return np.array([float(x) for x in text.split(",")])
+
+
+def first_hits(detector, params, track, index, light, rng):
+    """(first-hit time per sensor, ns, inf where none; photons per sensor) of event
+    ``index``: generator + sampled transport, each photon's time + tts x N(0, 1) + its
+    sensor's time offset."""
+    photons = track_photons(detector, track, 7, index, light)
+    tally = sample_photon_bundle(detector, spectral_params(params, light), photons,
+                                 jax.random.key(index), source_time=0.0)
+    sensor = np.asarray(tally.photon_sensor)
+    time = np.asarray(tally.photon_time, np.float64) \
+        + float(params.tts) * rng.standard_normal(sensor.size) \
+        + np.asarray(params.time_offset, np.float64)[sensor]
+    first = np.full(detector.n_sensors, np.inf)
+    np.minimum.at(first, sensor, time)
+    return first, np.asarray(tally.n_pe)
+
+
+def pit_values(prediction, hits):
+    """(PIT given the true count, PIT given the expected charge, expected charge) of every
+    hit sensor over the events ``hits`` ((first times, counts) pairs)."""
+    given_count, given_mean, charges = [], [], []
+    charge = np.asarray(prediction.charge, np.float64)
+    for first, count in hits:
+        hit = count > 0
+        cdf = np.asarray(prediction.time_cdf(jnp.asarray(np.where(hit, first, 0.0))),
+                         np.float64)[hit]
+        cdf = np.clip(cdf, 0.0, 1.0)
+        given_count.append(-np.expm1(count[hit] * np.log1p(-np.minimum(cdf, 1 - 1e-16))))
+        mu = charge[hit]
+        given_mean.append(-np.expm1(-mu * cdf) / -np.expm1(-mu))
+        charges.append(mu)
+    return tuple(np.concatenate(x) for x in (given_count, given_mean, charges))
+
+
+def flatness(values) -> tuple[np.ndarray, float]:
+    """(histogram in ``BINS`` bins of [0, 1], chi2 / ndf against a flat one)."""
+    counts = np.histogram(values, bins=BINS, range=(0.0, 1.0))[0]
+    expected = values.size / BINS
+    return counts, float(np.sum((counts - expected) ** 2) / expected / (BINS - 1))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--detector", default="SK")
+    parser.add_argument("--particle", default="mu-")
+    parser.add_argument("--energy", type=float, default=1000.0)
+    parser.add_argument("--events", type=int, default=200)
+    parser.add_argument("--start", type=_vector, default=_vector("0,0,0"))
+    parser.add_argument("--direction", type=_vector, default=_vector("1,0,0"))
+    parser.add_argument("--keys", type=int, default=1)
+    args = parser.parse_args()
+    detector = pf.load_detector(args.detector)
+    base = pf.default_params(detector)
+    params = base.replace(dark_rate=base.dark_rate * 0)
+    config = pf.TransportConfig(n_rays=4096)
+    track = pf.Track(args.particle, args.start, args.direction / np.linalg.norm(args.direction),
+                     args.energy, 0.0)
+    predictions = [pf.expected(detector, params, track, config=config, key=jax.random.key(k))
+                   for k in range(args.keys)]
+    prediction = predictions[0]
+    if args.keys > 1:  # the mixture of the keys' predictions
+        charge = sum(p.charge for p in predictions) / args.keys
+        weights = jnp.concatenate([p.time_weight * p.charge[:, None] for p in predictions], 1)
+        prediction = pf.Prediction.from_components(
+            charge, weights / args.keys, jnp.concatenate([p.time_mean for p in predictions], 1),
+            jnp.concatenate([p.time_sigma for p in predictions], 1))
+        if predictions[0].time_tau is not None:
+            prediction = dataclasses.replace(
+                prediction, time_tau=jnp.concatenate([p.time_tau for p in predictions], 1))
+    light = track_light(detector)
+    rng = np.random.default_rng(3)
+    hits = [first_hits(detector, params, track, i, light, rng)
+            for i in with_progress(range(args.events), "sampled events", show=True)]
+    given_count, given_mean, charges = pit_values(prediction, hits)
+    counts, chi2 = flatness(given_count)
+    print(f"{args.detector} {args.particle} {args.energy:g} MeV: {given_count.size} first"
+          f" hits, PIT given the count chi2/ndf {chi2:.2f} (ndf {BINS - 1})")
+    print("histogram:", " ".join(str(c) for c in counts))
+    for low, high in ((0.0, 1.0), (1.0, 10.0), (10.0, np.inf)):
+        chosen = (charges >= low) & (charges < high)
+        if chosen.sum() >= 10 * BINS:
+            counts, chi2 = flatness(given_count[chosen])
+            print(f"  mu {low:g}-{high:g} p.e.: {chosen.sum()} hits, chi2/ndf {chi2:.2f};"
+                  f" first/last bins {counts[:3].tolist()} ... {counts[-3:].tolist()}")
+    counts, chi2 = flatness(given_mean)
+    print(f"PIT given the expected charge: chi2/ndf {chi2:.2f};"
+          f" histogram {' '.join(str(c) for c in counts)}")
+
+
+if __name__ == "__main__":
+    main()
