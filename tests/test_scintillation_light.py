@@ -64,9 +64,10 @@ def test_deposit_histogram_spreads_each_segment_over_its_bins():
 def test_the_scintillation_model_reproduces_its_table(particle):
     """At the table's energies the model's light integrates to light yield x the
     tabulated visible energy (0.5 %; that beyond the distance range, < 5 %: an
-    electron's far bremsstrahlung deposits, spread over the range), the light up to each knot along the track follows the table's deposit
-    within 2 % of the total (a knot interval smooths an electron's sharp end), and the shipped
-    table holds the visible energy to 0.2 % (statistical)."""
+    electron's far bremsstrahlung deposits, spread over the range), the light up to
+    each knot along the track follows the table's deposit within 2 % of the total (a
+    knot interval smooths an electron's sharp end), and the shipped table holds the
+    visible energy to 0.2 % (statistical)."""
     table = tables.shipped_table(particle, "scintillator")
     model = scintillation_emission(particle, "scintillator", np.float64)
     assert table.scintillating
