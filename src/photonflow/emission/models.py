@@ -86,14 +86,9 @@ def scintillation_spectral_factor(sensor, medium: str, points: int = 601) -> flo
     and width ``emission_width`` nm, as the generator draws it): the factor by which the
     QE at the reference wavelength turns into the detection probability of a
     scintillation photon."""
-    from ..photosensors import relative_response
-
     material = resolve_material(medium)
     wavelength = material.emission_peak + material.emission_width * np.linspace(-6, 6, points)
-    spectrum = np.exp(-0.5 * np.linspace(-6, 6, points) ** 2)
-    response = np.asarray(relative_response(sensor, wavelength), np.float64)
-    return float(np.trapezoid(response * spectrum, wavelength)
-                 / np.trapezoid(spectrum, wavelength))
+    return _mean_response(sensor, wavelength, np.exp(-0.5 * np.linspace(-6, 6, points) ** 2))
 
 
 def cherenkov_spectral_factor(sensor, medium: str, points: int = 601) -> float:
@@ -102,13 +97,18 @@ def cherenkov_spectral_factor(sensor, medium: str, points: int = 601) -> float:
     generator's band (dN/dlambda ~ (1 - 1 / n(lambda)^2) / lambda^2): the factor by which
     the QE at the reference wavelength turns into the detection probability of a table
     photon (the sampled mode keeps photons by their own wavelength)."""
-    from ..photosensors import relative_response
-
     material = resolve_material(medium)
     low, high = GeneratorSettings().band
     wavelength = np.linspace(low, high, points)
     index = np.asarray(refractive_index(material, wavelength), np.float64)
-    spectrum = (1.0 - 1.0 / index**2) / wavelength**2
+    return _mean_response(sensor, wavelength, (1.0 - 1.0 / index**2) / wavelength**2)
+
+
+def _mean_response(sensor, wavelength, spectrum) -> float:
+    """The spectrum-weighted mean of ``relative_response`` of ``sensor`` over
+    ``wavelength`` (nm; trapezoids)."""
+    from ..photosensors import relative_response
+
     response = np.asarray(relative_response(sensor, wavelength), np.float64)
     return float(np.trapezoid(response * spectrum, wavelength)
                  / np.trapezoid(spectrum, wavelength))

@@ -32,7 +32,14 @@ from ..generator.emission_tables import EmissionTable
 from ..generator.materials import resolve_material
 from ..numerics import default_float_dtype
 from ..pytree import pytree_dataclass, static_field
-from .spline import _cubic, distance_groups, natural_energy_weights, offset_moments
+from .spline import (
+    _cell_widths,
+    _cubic,
+    distance_groups,
+    natural_energy_weights,
+    offset_moments,
+    time_offset_moments,
+)
 
 #: The extra node below the table's first energy, as a fraction of it.
 LOW_NODE_FRACTION = 0.1
@@ -70,7 +77,8 @@ class ScintillationSlice:
     def density(self, s, cos, width=None):
         """d^2N / ds dcos at (s m, cos): photons per particle per m per unit cos, the same
         for every cos (``width``, a footprint to average over, changes nothing)."""
-        return 0.5 * self.scale * self._profile(s / self.extent) + 0.0 * cos
+        value = 0.5 * self.scale * self._profile(s / self.extent)
+        return jnp.broadcast_to(value, jnp.broadcast_shapes(value.shape, jnp.shape(cos)))
 
     def fraction_profile(self):
         """(D,) light per unit x at the x knots, before ``scale``."""
@@ -78,16 +86,13 @@ class ScintillationSlice:
 
     def cos_profile(self):
         """(2,) light per unit cos at cos = -1 and 1 (uniform), before ``scale``."""
-        total = jnp.sum(self.root[0] ** 2 * _knot_widths(self.fraction))
+        total = jnp.sum(self.root[0] ** 2 * _cell_widths(self.fraction))
         return jnp.full(2, 0.5 * total, total.dtype)
 
     def time_moments(self, s):
         """(mean ns, variance ns^2) of the emission-time offset t - s / c at s (m),
         before the decay delay."""
-        x = s / self.extent
-        mean = _cubic(self.fraction, self.time_mean[0], self.time_mean[1], x)
-        variance = _cubic(self.fraction, self.time_variance[0], self.time_variance[1], x)
-        return mean, jnp.maximum(variance, 0.0)
+        return time_offset_moments(self, s)
 
 
 @pytree_dataclass
@@ -134,7 +139,7 @@ class ScintillationModel:
         root = combine(self.root)
         extent = combine(self.extent)
         total_yield = self.light_yield * jnp.maximum(combine(self.visible), 0.0)
-        knots_sum = jnp.sum(root[0] ** 2 * _knot_widths(self.fraction))
+        knots_sum = jnp.sum(root[0] ** 2 * _cell_widths(self.fraction))
         safe = jnp.where(knots_sum > 0, knots_sum, 1.0)
         dtype = self.fraction.dtype
         return ScintillationSlice(
@@ -147,12 +152,6 @@ class ScintillationModel:
             scale=jnp.where(knots_sum > 0, total_yield / safe, 0.0) / extent,
             total_yield=total_yield,
         )
-
-
-def _knot_widths(knots):
-    """Width of the cell around each knot (as ``spline._cell_widths``)."""
-    gaps = knots[1:] - knots[:-1]
-    return 0.5 * (jnp.concatenate([gaps[:1], gaps]) + jnp.concatenate([gaps, gaps[-1:]]))
 
 
 def scintillation_model(table: EmissionTable, dtype=None) -> ScintillationModel:

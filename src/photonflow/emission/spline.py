@@ -109,10 +109,17 @@ class EmissionSlice:
 
     def time_moments(self, s):
         """(mean ns, variance ns^2) of the emission-time offset t - s / c at s (m)."""
-        x = s / self.extent
-        mean = _cubic(self.fraction, self.time_mean[0], self.time_mean[1], x)
-        variance = _cubic(self.fraction, self.time_variance[0], self.time_variance[1], x)
-        return mean, jnp.maximum(variance, 0.0)
+        return time_offset_moments(self, s)
+
+
+def time_offset_moments(piece, s):
+    """(mean ns, variance ns^2) of the emission-time offset at s (m) of a slice with
+    ``fraction`` knots, ``extent`` (m) and (value, d/dx) rows ``time_mean`` and
+    ``time_variance`` (cubic Hermite in x = s / extent; the variance kept >= 0)."""
+    x = s / piece.extent
+    mean = _cubic(piece.fraction, piece.time_mean[0], piece.time_mean[1], x)
+    variance = _cubic(piece.fraction, piece.time_variance[0], piece.time_variance[1], x)
+    return mean, jnp.maximum(variance, 0.0)
 
 
 @pytree_dataclass

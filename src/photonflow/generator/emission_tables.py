@@ -158,8 +158,9 @@ def light_extent(particle, energy, seed, medium, settings) -> float:
         event = generate(Track(particle, (0, 0, 0), (0, 0, 1), energy), child, material,
                          settings)
         z.append(event.position[:, 2].astype(np.float64))
-        ends.append(np.maximum(event.deposits.start[:, 2], event.deposits.end[:, 2]))
-        visible.append(event.deposits.visible_energy)
+        if scintillating:
+            ends.append(np.maximum(event.deposits.start[:, 2], event.deposits.end[:, 2]))
+            visible.append(event.deposits.visible_energy)
     if scintillating:
         quantile = _weighted_quantile(np.concatenate(ends), np.concatenate(visible),
                                       VISIBLE_QUANTILE)
