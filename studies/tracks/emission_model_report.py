@@ -1,11 +1,13 @@
-"""Fit quality of the spline emission model against its table (issue 24, item 3):
+"""Fit quality of the emission models against their table (issue 24, item 3):
 
-    python studies/tracks/emission_model_report.py [--particle mu-] [--plot FILE.png]
+    python studies/tracks/emission_model_report.py [--particle mu-] [--model spline|siren]
+        [--plot FILE.png]
 
 - yield: the model's total yield at each energy node when that node is left out of the
   fit (leave-one-out: the interpolation error between nodes), relative to the table's
   yield and in units of its standard error (at the nodes themselves the spline passes
-  through the table's yields exactly);
+  through the table's yields exactly; the SIREN model shares the spline's yield, and
+  its network's own normalisation error is ``photonflow tables train``'s report);
 - angular profile: the model's photons per cos bin (density integrated over s and the
   bin) against the table's, chi2 per bin with the table's standard errors, over the bins
   holding 99 % of the light;
@@ -23,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from photonflow.emission import spline_emission
+from photonflow.emission import emission_model, spline_emission
 from photonflow.emission.models import threshold_energy
 from photonflow.generator import emission_tables as tables
 
@@ -40,7 +42,7 @@ def _without(table, k):
                                          if isinstance(v, np.ndarray)})
 
 
-def _profile(piece, extent, cos_edges, s_points=801, per_bin=7):
+def _profile(piece, extent, cos_edges, s_points, per_bin):
     """Photons per cos bin of one ``EmissionSlice`` (trapezoids on a fine grid)."""
     s = np.linspace(0.0, extent, s_points)
     cos = np.concatenate([np.linspace(lo, hi, per_bin) for lo, hi in
@@ -54,12 +56,17 @@ def _profile(piece, extent, cos_edges, s_points=801, per_bin=7):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--particle", default="mu-")
+    parser.add_argument("--model", default="spline", choices=["spline", "siren"])
+    parser.add_argument("--s-points", type=int, default=801,
+                        help="points along s of the profile's trapezoids")
+    parser.add_argument("--per-bin", type=int, default=7,
+                        help="points per cos bin of the profile's trapezoids")
     parser.add_argument("--plot", default=None)
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
     table = tables.shipped_table(args.particle)
     threshold = threshold_energy(args.particle, "water")
-    model = spline_emission(table, threshold, np.float64)
+    model = emission_model(args.particle, "water", np.float64, kind=args.model)
     rows = []
     for k, energy in enumerate(table.energies):
         inner = 0 < k < table.energies.size - 1
@@ -69,7 +76,8 @@ def main() -> None:
         else:
             loo = np.nan
         piece = model.at(float(energy))
-        profile = _profile(piece, float(table.distance_edges[k, -1]), table.cos_edges)
+        profile = _profile(piece, float(table.distance_edges[k, -1]), table.cos_edges,
+                           args.s_points, args.per_bin)
         reference = table.photons[k].sum(axis=0)
         error = np.maximum(table.angular_error[k], 1e-12)
         order = np.argsort(reference)[::-1]
@@ -77,7 +85,7 @@ def main() -> None:
         chi2 = float(np.mean(((profile - reference)[main] / error[main]) ** 2))
         rows.append((energy, loo, loo * table.total_yield[k] / table.yield_error[k], chi2,
                      profile.sum() / table.total_yield[k] - 1.0))
-    print(f"{args.particle}: {table.energies.size} energies, "
+    print(f"{args.particle}, {args.model} model: {table.energies.size} energies, "
           f"{int(table.particles.sum())} particles")
     print("| E MeV | yield, node left out | in table errors | profile chi2/bin (99 % of light)"
           " | profile integral - yield |")
@@ -91,7 +99,7 @@ def main() -> None:
           f"max {np.max([r[3] for r in rows]):.2f}")
 
     jax.config.update("jax_enable_x64", False)
-    fast = spline_emission(table, threshold, np.float32).at(1000.0)
+    fast = emission_model(args.particle, "water", np.float32, kind=args.model).at(1000.0)
     points = jnp.asarray(np.random.default_rng(0).uniform([0, 0.5], [3, 0.95], (10**6, 2)),
                          jnp.float32)
     plain = jax.jit(lambda p: fast.density(p[:, 0], p[:, 1]))

@@ -32,15 +32,29 @@ def threshold_energy(particle: str, medium: str) -> float:
                                      float(refractive_index(material, shortest))))
 
 
-def emission_model(particle: str, medium: str = "water", dtype=None) -> SplineEmission:
-    """The shipped ``SplineEmission`` of ``particle`` in ``medium`` (arrays of ``dtype``,
-    default JAX's default float), built once per process.
+#: The emission models, by the name ``TransportConfig.emission_model`` gives them.
+EMISSION_MODELS = ("spline", "siren")
+
+
+def emission_model(particle: str, medium: str = "water", dtype=None,
+                   kind: str = "spline"):
+    """The shipped emission model of ``particle`` in ``medium`` (arrays of ``dtype``,
+    default JAX's default float), built once per process: ``kind`` "spline" (the
+    ``SplineEmission``, the default) or "siren" (the ``SirenEmission`` of the shipped
+    trained network; ``docs/tracks.md`` compares them).
 
     Raises:
-        ConfigError: no table ships for that particle and medium (one line).
+        ConfigError: an unknown ``kind``, or no model ships for that particle and medium
+            (one line).
     """
+    if kind not in EMISSION_MODELS:
+        raise ConfigError(f"emission_model = {kind!r}: must be one of"
+                          f" {', '.join(EMISSION_MODELS)}")
     dtype = default_float_dtype() if dtype is None else jax.dtypes.canonicalize_dtype(dtype)
-    return _model(SAME_LIGHT.get(particle, particle), medium, dtype.name)
+    particle = SAME_LIGHT.get(particle, particle)
+    if kind == "siren":
+        return _siren(particle, medium, dtype.name)
+    return _model(particle, medium, dtype.name)
 
 
 def scintillation_emission(particle: str, medium: str = "water",
@@ -78,6 +92,23 @@ def _model(particle: str, medium: str, dtype_name: str) -> SplineEmission:
     table = shipped_table(particle, medium)
     with jax.ensure_compile_time_eval():  # built eagerly even when first asked in a trace
         return spline_emission(table, threshold_energy(particle, medium), np.dtype(dtype_name))
+
+
+#: The shipped SIREN networks, by (particle, medium), in ``photonflow/data``.
+SHIPPED_NETWORKS = {key: f"siren_{key[0]}_{key[1]}.eqx" for key in SHIPPED}
+
+
+@functools.cache
+def _siren(particle: str, medium: str, dtype_name: str):
+    from importlib.resources import files
+
+    from .siren import load_network, siren_emission  # equinox: imported when first asked
+
+    _check_shipped(particle, medium)
+    with jax.ensure_compile_time_eval():  # built eagerly even when first asked in a trace
+        network, _ = load_network(files("photonflow") / "data"
+                                  / SHIPPED_NETWORKS[(particle, medium)])
+        return siren_emission(network, _model(particle, medium, dtype_name))
 
 
 def scintillation_spectral_factor(sensor, medium: str, points: int = 601) -> float:

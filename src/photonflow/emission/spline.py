@@ -232,22 +232,9 @@ def spline_emission(table: EmissionTable, threshold: float, dtype=None) -> Splin
     ``MERGED_DISTANCE_BINS`` after the first ``UNMERGED_START``."""
     import interpax
 
+    table, fraction, cos, averaged = footprint_densities(table, threshold)
     energies = np.asarray(table.energies, np.float64)
-    if not 0.0 < threshold < energies[-1]:
-        raise ValueError(f"threshold = {threshold:g} MeV: must lie below the table's last"
-                         f" energy {energies[-1]:g} MeV")
-    table = _above(table, threshold)  # a scintillator's table starts below it
-    energies = np.asarray(table.energies, np.float64)
-    bins = table.photons.shape[1]
-    groups = distance_groups(bins)
-    table = _merge_distance_bins(table, groups)
-    fraction = 0.5 * (groups[1:] + groups[:-1]) / bins
-    cos = 0.5 * (table.cos_edges[1:] + table.cos_edges[:-1])
-    widths = np.outer(np.diff(groups) / bins, np.diff(table.cos_edges))
-    density = np.maximum(table.photons, 0.0) / widths  # (E, D, A)
-    density = np.concatenate([np.zeros_like(density[:1]), density])
-    averaged = np.maximum(
-        np.einsum("wab,edb->ewda", _footprint_matrices(table.cos_edges), density), 0.0)
+    averaged = np.concatenate([np.zeros_like(averaged[:1]), averaged])
     dtype = default_float_dtype() if dtype is None else np.dtype(dtype)
     fraction, cos, root = (np.asarray(x, dtype) for x in (fraction, cos, np.sqrt(averaged)))
     with jax.numpy_dtype_promotion("standard"):  # interpax mixes int and float
@@ -276,6 +263,28 @@ def spline_emission(table: EmissionTable, threshold: float, dtype=None) -> Splin
         particle=table.particle,
         medium=table.medium,
     )
+
+
+def footprint_densities(table: EmissionTable, threshold: float):
+    """The table as the models fit it: its rows above ``threshold`` (MeV), distance bins
+    merged (``distance_groups``); returns (that table, (D,) knots in x = s / extent,
+    (A,) knots in cos, (E, W, D, A) photons per particle per unit x per unit cos averaged
+    over the footprints of ``FOOTPRINT_WIDTHS``, on the knots)."""
+    energies = np.asarray(table.energies, np.float64)
+    if not 0.0 < threshold < energies[-1]:
+        raise ValueError(f"threshold = {threshold:g} MeV: must lie below the table's last"
+                         f" energy {energies[-1]:g} MeV")
+    table = _above(table, threshold)  # a scintillator's table starts below it
+    bins = table.photons.shape[1]
+    groups = distance_groups(bins)
+    table = _merge_distance_bins(table, groups)
+    fraction = 0.5 * (groups[1:] + groups[:-1]) / bins
+    cos = 0.5 * (table.cos_edges[1:] + table.cos_edges[:-1])
+    widths = np.outer(np.diff(groups) / bins, np.diff(table.cos_edges))
+    density = np.maximum(table.photons, 0.0) / widths  # (E, D, A)
+    averaged = np.maximum(
+        np.einsum("wab,edb->ewda", _footprint_matrices(table.cos_edges), density), 0.0)
+    return table, fraction, cos, averaged
 
 
 def _footprint_matrices(cos_edges) -> np.ndarray:

@@ -180,7 +180,7 @@ def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
     def predict(params: Params, source, key=None, reference=None) -> Prediction:
         """Expected p.e. and time mixture per sensor (see ``expected``); no checks."""
         if isinstance(source, Track):
-            model = emission_model(source.particle, medium, dtype)
+            model = emission_model(source.particle, medium, dtype, config.emission_model)
             scintillator = scintillation_emission(source.particle, medium, dtype)
             cherenkov_factor, scintillation_factor = spectral()
             scintillation = None if scintillator is None else (scintillator,

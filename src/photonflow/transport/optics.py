@@ -62,6 +62,9 @@ class TransportConfig:
         specular_probes: probe rays per vertex and ray (and per ray at the source) that
             look for light mirrored by the wall into a sensor (``indirect.py``); the
             variance of that light falls as 1 / specular_probes.
+        emission_model: the emission model of particle tracks, "spline" (default) or
+            "siren" (``photonflow.emission.emission_model``; ``docs/tracks.md``
+            compares them).
     """
 
     n_bounces: int = 2
@@ -72,6 +75,7 @@ class TransportConfig:
     batch_size: int = 1 << 17
     mie_proposal_asymmetry: float = 0.4
     specular_probes: int = 8
+    emission_model: str = "spline"
 
 
 #: The default ``TransportConfig`` (readout window -100..900 ns, no threshold).
