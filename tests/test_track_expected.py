@@ -332,3 +332,25 @@ def test_direct_arrival_times_match_the_sampled_photons():
     sampled = np.array([np.median(times[int(j)]) for j in brightest])
     np.testing.assert_allclose(mean[brightest], sampled, atol=0.2)
     assert abs(np.median(mean[brightest] - sampled)) < 0.1
+
+
+def test_moments_of_a_nearly_dark_run_have_finite_gradients():
+    """A run of the quadrature's panels far from the Cherenkov peak can hold ~1e-20 p.e.;
+    the derivatives of its light-weighted moments (~1 / light^2) overflowed float32 and
+    made the SK event likelihood's gradient NaN during a fit. Below
+    ``LIGHT_FLOOR`` a run has fixed moments: finite gradients, whatever the light."""
+    from photonflow.transport.track_direct import LIGHT_FLOOR, mixed_moments
+
+    def moments(x, scale):
+        charge = scale * jnp.exp(jnp.stack([x, 2.0 * x]))
+        mean = 36.0 + jnp.stack([x, 3.0 * x])
+        variance = jnp.stack([4.0 + x, 4.0])
+        total, first, second = mixed_moments(charge, mean, variance, axis=0)
+        return total + first + second
+
+    for scale in (5e-21, 1e-13, 1e-3, 1.0):
+        gradient = jax.grad(moments)(jnp.float32(0.1), jnp.float32(scale))
+        assert np.isfinite(float(gradient)), scale
+    # above the floor the moments move with the light's times
+    assert float(jax.grad(moments)(jnp.float32(0.1), jnp.float32(1.0))) > 1.0
+    assert LIGHT_FLOOR < 1e-9

@@ -40,11 +40,13 @@ configure_from_environment()  # persistent compilation cache (photonflow.compila
 #: of every process's start.
 _LAZY = {"CalibrationResult": "calibration", "calibrate": "calibration",
          "load_params": "calibration", "EventFile": "io", "read_events": "io",
-         "write_events": "io"}
+         "write_events": "io", "RecoResult": "reconstruction",
+         "reconstruct": "reconstruction"}
 
 if TYPE_CHECKING:  # what static tools (type checkers, the API reference) see of them
     from .calibration import CalibrationResult, calibrate, load_params
     from .io import EventFile, read_events, write_events
+    from .reconstruction import RecoResult, reconstruct
 
 
 __getattr__, __dir__ = lazy_names(__name__, _LAZY)
@@ -76,6 +78,7 @@ __all__ = [
     "PhotonflowError",
     "Photons",
     "Prediction",
+    "RecoResult",
     "SensorFileError",
     "Sphere",
     "Track",
@@ -95,6 +98,7 @@ __all__ = [
     "nll",
     "presets",
     "read_events",
+    "reconstruct",
     "sample",
     "sample_events",
     "sensor_nll",

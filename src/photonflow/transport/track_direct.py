@@ -142,7 +142,7 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
     mixed = mixed_moments(jnp.stack([charge[index], fine[0]], axis=1) * weights,
                    jnp.stack([mean[index], fine[1]], axis=1),
                    jnp.stack([variance[index], fine[2]], axis=1), axis=1)
-    mean_near = where(mixed[0] > 0, mixed[1], mean[index])
+    mean_near = where(mixed[0] > LIGHT_FLOOR, mixed[1], mean[index])
     return (charge.at[index].set(mixed[0]), mean.at[index].set(mean_near),
             variance.at[index].set(mixed[2]))
 
@@ -178,12 +178,19 @@ def _sub_disc_offsets(normals, radius):
     return offsets, 1.0 / math.sqrt(count)
 
 
+#: A mixture with less light than this (p.e.) gets mean 0 and variance 0: its moments'
+#: derivatives, ~(time / light)^2, would overflow float32 (a run of the quadrature's
+#: panels far from the Cherenkov peak can hold 1e-19 p.e.); so little light weighs
+#: nothing in any likelihood.
+LIGHT_FLOOR = 1e-12
+
+
 def mixed_moments(charge, mean, variance, axis):
     """Moments of the mixture of components (charge, mean, variance) along ``axis``:
-    (charge summed, light-weighted mean, variance about it); a mixture without light
-    gets mean 0 and variance 0."""
+    (charge summed, light-weighted mean, variance about it); a mixture with less light
+    than ``LIGHT_FLOOR`` gets mean 0 and variance 0."""
     total = jnp.sum(charge, axis=axis)
-    lit = total > 0
+    lit = total > LIGHT_FLOOR
     safe = where(lit, total, 1.0)
     first = jnp.sum(charge * mean, axis=axis) / safe
     second = jnp.sum(charge * (variance + mean * mean), axis=axis) / safe

@@ -31,7 +31,7 @@ from ..numerics import safe_sqrt, where
 from ..prediction import Prediction
 from ..response.expected import SensorLight, expected_response
 from .indirect import indirect_light_jit
-from .track_direct import DIRECT_COMPONENTS, mixed_moments, track_direct_light
+from .track_direct import DIRECT_COMPONENTS, LIGHT_FLOOR, mixed_moments, track_direct_light
 from .track_rays import TrackEmitter, kernel_width
 
 
@@ -76,7 +76,7 @@ def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, s
                                      zip((charges, means, variances), delayed[:3],
                                          strict=True))
         residual = residual + parts[3]
-    has_light = charges > 0
+    has_light = charges > LIGHT_FLOOR
     return SensorLight(
         charge=charges,
         time_mean=where(has_light, means, start[:, None]),
@@ -144,8 +144,9 @@ def _emitted_light(sensors, params, track, direction, length, emission, rays_emi
     charge, mean, variance = track_direct_light(sensors, params, track.position, direction,
                                                 track.time, emission, length)
     total = jnp.sum(charge, axis=1)
-    start = jnp.sum(charge * mean, axis=1) / where(total > 0, total, 1.0)
-    start = where(total > 0, start, mean[:, 0])
+    lit = total > LIGHT_FLOOR
+    start = jnp.sum(charge * mean, axis=1) / where(lit, total, 1.0)
+    start = where(lit, start, mean[:, 0])
     emitter = TrackEmitter(track.position, direction, track.time, emission, length,
                            rays_from.position,
                            rays_from.direction / jnp.linalg.norm(rays_from.direction),
@@ -167,7 +168,7 @@ def _decayed(charge, mean, variance, decay_times, decay_weights):
     pairs.append(mixed_moments(charge[:, DIRECT_COMPONENTS:], mean[:, DIRECT_COMPONENTS:],
                         variance[:, DIRECT_COMPONENTS:], axis=1))
     merged = [jnp.stack(x, axis=1) for x in zip(*pairs, strict=True)]  # 3 x (N, S)
-    lit = merged[0] > 0
+    lit = merged[0] > LIGHT_FLOOR
     merged[1] = where(lit, merged[1], mean[:, :1])
     outputs = [[], [], [], []]
     for tau, weight in zip(decay_times, decay_weights, strict=True):

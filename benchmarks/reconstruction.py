@@ -1,0 +1,87 @@
+"""Reconstruction benchmark (issue 25): ``python benchmarks/reconstruction.py [--events N]
+[--minuit M] [--out FILE.jsonl]``.
+
+SK with the default parameters, 1 GeV muons from the generator and the sampled mode
+(vertices uniform at least 2 m inside the walls, isotropic directions, seed 7), each
+reconstructed by ``reconstruct(..., method="gradient")`` from its hits alone, the first
+``--minuit`` of them also by MINUIT. One JSON line per fit (written as it ends, so an
+interrupted run keeps what it measured): seconds, likelihood evaluations, converged,
+the vertex error (m), direction error (degrees) and energy error (fraction), and the
+reported 1-sigma errors. The first fit of each method includes its compilation.
+Prints the medians at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+import numpy as np
+
+
+def _truths(detector, count: int, seed: int):
+    """``count`` 1 GeV muons, vertices uniform at least 2 m inside SK's walls."""
+    import photonflow as pf
+
+    rng = np.random.default_rng(seed)
+    radius, half = detector.shape.radius - 2.0, 0.5 * detector.shape.height - 2.0
+    tracks = []
+    while len(tracks) < count:
+        x, y = rng.uniform(-radius, radius, 2)
+        if x * x + y * y > radius * radius:
+            continue
+        direction = rng.normal(size=3)
+        tracks.append(pf.Track("mu-", [x, y, rng.uniform(-half, half)],
+                               direction / np.linalg.norm(direction), 1000.0, 0.0))
+    return tracks
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--events", type=int, default=5)
+    parser.add_argument("--minuit", type=int, default=1)
+    parser.add_argument("--out", default=None)
+    args = parser.parse_args()
+    import photonflow as pf
+    from photonflow.benchmarking import machine_description
+
+    detector = pf.load_detector("SK")
+    params = pf.default_params(detector)
+    config = pf.TransportConfig(n_rays=1024)
+    out = open(args.out, "a") if args.out else None  # noqa: SIM115
+    rows = []
+    print(f"Machine: {machine_description()}", flush=True)
+    for k, truth in enumerate(_truths(detector, args.events, 7)):
+        event = pf.sample(detector, params, truth, seed=100 + k)
+        for method in ("gradient", "minuit")[: 2 if k < args.minuit else 1]:
+            fit = pf.reconstruct(detector, params, event, "mu-", method, config=config)
+            row = {"event": k, "method": method, "seconds": fit.seconds,
+                   "evaluations": fit.evaluations, "converged": fit.converged,
+                   "failure": fit.failure}
+            if fit.failure is None:
+                row.update(
+                    vertex_m=float(np.linalg.norm(fit.position - truth.position)),
+                    direction_deg=math.degrees(math.acos(min(1.0, float(
+                        fit.direction @ truth.direction)))),
+                    energy_frac=fit.energy / 1000.0 - 1.0, errors=fit.errors)
+            rows.append(row)
+            line = json.dumps(row)
+            print(line, flush=True)
+            if out:
+                out.write(line + "\n")
+                out.flush()
+    for method in ("gradient", "minuit"):
+        done = [r for r in rows if r["method"] == method and r["failure"] is None]
+        if done:
+            later = [r["seconds"] for r in done[1:]] or [done[0]["seconds"]]
+            print(f"{method}: {len(done)} fits, median {np.median(later):.1f} s per event"
+                  f" after the first, vertex {np.median([r['vertex_m'] for r in done]):.3f} m,"
+                  f" direction {np.median([r['direction_deg'] for r in done]):.2f} deg,"
+                  f" |energy| {np.median([abs(r['energy_frac']) for r in done]):.3f}",
+                  file=sys.stdout)
+
+
+if __name__ == "__main__":
+    main()

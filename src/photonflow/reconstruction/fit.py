@@ -1,0 +1,522 @@
+"""Event reconstruction: the track that maximises the likelihood of an event's hits.
+
+``reconstruct`` seeds the fit from the hits alone (``seeding``), places a few starts
+behind the point-source vertex along the seeded direction and its opposite (the
+particle outruns its light), evaluates the likelihood at each and fits the best
+``RecoSettings.fits`` of them; the best minimum is kept. The likelihood is the full
+charge + first-hit-time likelihood with dark noise (``likelihood.dense_sensor_nll``) of
+the expected response of the track (``expected_function``), in the free coordinates of
+``coordinates`` (the vertex stays inside the detector by the map). Two minimisers:
+
+- ``method="gradient"``: L-BFGS (optax, zoom line search) on exact gradients;
+- ``method="minuit"``: MIGRAD (iminuit) with numerical derivatives, errors by HESSE:
+  the conventional fit of the same likelihood from the same starts.
+
+The indirect light's rays are fixed by a reference track (``expected``'s
+``reference``): each fit starts with its start as the reference, and when the fitted
+track has moved from it by more than ``RecoSettings.refresh_distance`` (m) or
+``refresh_angle`` (degrees), the reference and the direction axis of the coordinates
+move to the fitted track and the fit continues (at most ``refreshes`` times). The
+covariance is the inverse of the Hessian of the negative log-likelihood (the observed
+Fisher information) at the fitted track in ``coordinates.LOCAL``, the Hessian from
+exact second derivatives for both methods' reporting of the gradient fit and from HESSE
+(transformed to the same coordinates) for MINUIT. Lengths m, times ns, energies MeV.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import math
+import time as clock
+from weakref import WeakKeyDictionary
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ..constants import SPEED_OF_LIGHT
+from ..emission import emission_model
+from ..errors import ConfigError
+from ..generator.track import Track
+from ..likelihood import dense_sensor_nll, hit_arrays
+from ..numerics import default_float_dtype
+from ..transport.expected import expected_function
+from ..transport.optics import TransportConfig
+from ..transport.tracks import detector_medium
+from .coordinates import (
+    fit_frame,
+    free_from_track,
+    local_from_track,
+    track_from_free,
+    track_from_local,
+)
+from .result import RecoResult
+from .seeding import energy_from_charge, point_source_seed
+
+#: Particle hypotheses a fit takes; "auto" fits both and keeps the likelier.
+PARTICLES = ("mu-", "e-", "auto")
+METHODS = ("gradient", "minuit")
+#: Distances behind the point-source vertex along the seeded direction (and along the
+#: opposite direction, for an event whose seeded direction is reversed) of the starts,
+#: in units of the light's extent at the seeded energy (the particle outruns its light:
+#: the point-source vertex of a 1 GeV muon in SK lies 2-4 m ahead of its start).
+START_SHARES = (0.0, 0.35, 0.7)
+#: ... and of the starts in the ``RecoSettings.scan_directions`` directions spread over
+#: the sphere (the seeded direction can be far off in a small detector, where the
+#: point-source vertex falls near the wall).
+SCAN_SHARE = 0.35
+
+
+def sphere_directions(count: int) -> np.ndarray:
+    """(count, 3) unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
+    k = np.arange(count) + 0.5
+    cos = 1.0 - 2.0 * k / max(count, 1)
+    azimuth = np.pi * (1.0 + 5.0**0.5) * k
+    sine = np.sqrt(1.0 - cos * cos)
+    return np.stack([sine * np.cos(azimuth), sine * np.sin(azimuth), cos], axis=-1)
+#: Energy (MeV) of the prediction that seeds the energy from the total charge.
+REFERENCE_ENERGY = {"mu-": 1000.0, "e-": 500.0}
+
+
+@dataclasses.dataclass(frozen=True)
+class RecoSettings:
+    """Settings of ``reconstruct``.
+
+    Attributes:
+        fits: how many of the starts (the likeliest) are fitted.
+        scan_directions: starts in directions spread over the sphere, from the
+            point-source vertex and from the detector's centre, besides the seeded
+            direction and its opposite.
+        max_iterations: optimiser iterations per fit stage.
+        tolerance: a fit stage ends when the negative log-likelihood fell by less than
+            this in each of the last ``patience`` iterations.
+        patience: see ``tolerance``.
+        refreshes: most reference refreshes per fit.
+        refresh_distance: m, and ``refresh_angle``, degrees: how far the fitted track
+            may move from the reference before the reference follows it.
+        margin: m, how far inside the walls the vertex is kept.
+        dtype: float dtype of the likelihood (None: JAX's default float for the
+            gradient method, float64 for MINUIT, whose numerical derivatives need it: in
+            float32 it stops short of its tolerance and HESSE's errors are noise).
+    """
+
+    fits: int = 2
+    scan_directions: int = 8
+    max_iterations: int = 200
+    tolerance: float = 1e-3
+    patience: int = 3
+    refreshes: int = 2
+    refresh_distance: float = 0.05
+    refresh_angle: float = 1.0
+    margin: float = 0.0
+    dtype: str | None = None
+
+
+def reconstruct(detector, params, event, particle: str = "mu-", method: str = "gradient",
+                *, config: TransportConfig | None = None,
+                settings: RecoSettings | None = None) -> RecoResult:
+    """Reconstruct one event (module docstring): the maximum-likelihood track of
+    ``particle`` ("mu-", "e-" or "auto": both, the likelier kept, with their
+    log-likelihood ratio) by ``method`` ("gradient" or "minuit").
+
+    Args:
+        detector: the ``Detector``; params: its ``Params``; event: an ``Event``.
+        config: transport settings of the prediction (default ``TransportConfig()``;
+            its window and charge threshold are the event's readout's).
+        settings: ``RecoSettings`` (default ``RecoSettings()``).
+
+    Returns:
+        A ``RecoResult``; an event that cannot be fitted (no hits, non-finite hits,
+        sensor ids out of range, a likelihood that is not finite) gives a result with
+        ``failure`` set, not an exception.
+
+    Raises:
+        ConfigError: an unknown ``particle`` or ``method`` (one line).
+    """
+    began = clock.perf_counter()
+    if particle not in PARTICLES:
+        raise ConfigError(f"particle = {particle!r}: must be one of {', '.join(PARTICLES)}")
+    if method not in METHODS:
+        raise ConfigError(f"method = {method!r}: must be one of {', '.join(METHODS)}")
+    settings = RecoSettings() if settings is None else settings
+    config = TransportConfig() if config is None else config
+    problem = event_problem(event, detector.n_sensors)
+    if problem is not None:
+        return RecoResult.failed(problem, particle, method, clock.perf_counter() - began)
+    precision = "float64" if method == "minuit" else None
+    with jax.enable_x64(True) if method == "minuit" else contextlib.nullcontext():
+        dtype = jnp.dtype(settings.dtype or precision or default_float_dtype())
+        functions = _functions(detector, dtype, config)
+        data = _event_data(detector, params, event, dtype, config)
+        seed = _seed(detector, params, event, dtype)
+        hypotheses = ("mu-", "e-") if particle == "auto" else (particle,)
+        results = {}
+        for hypothesis in hypotheses:
+            results[hypothesis] = _fit_particle(functions, detector, params, data, seed,
+                                                hypothesis, method, settings)
+    fitted = [r for r in results.values() if r.failure is None]
+    best = min(fitted, key=lambda r: r.nll) if fitted else results[hypotheses[0]]
+    ratio = None
+    if particle == "auto" and len(fitted) == 2:
+        ratio = results["mu-"].nll - results["e-"].nll
+    return dataclasses.replace(best, seconds=clock.perf_counter() - began,
+                               log_likelihood_ratio=ratio,
+                               iterations=sum(r.iterations for r in results.values()),
+                               evaluations=sum(r.evaluations for r in results.values()))
+
+
+def event_problem(event, n_sensors: int) -> str | None:
+    """Why ``event`` cannot be reconstructed (one line), or None."""
+    ids = np.asarray(event.sensor_ids)
+    if ids.size == 0:
+        return "no hits"
+    if ids.min() < 0 or ids.max() >= n_sensors:
+        bad = int(ids[(ids < 0) | (ids >= n_sensors)][0])
+        return f"sensor id {bad} out of range (the detector has {n_sensors} sensors)"
+    for name in ("charge", "time"):
+        values = np.asarray(getattr(event, name), np.float64)
+        if not np.all(np.isfinite(values)):
+            return f"non-finite hit {name}"
+    if np.unique(ids).size < 2:
+        return "all hits in one sensor"
+    return None
+
+
+@dataclasses.dataclass(frozen=True)
+class _Functions:
+    """The jitted pieces of one (detector, dtype, config): the likelihood of a track,
+    one L-BFGS step in free coordinates, and the Hessian in local coordinates."""
+
+    value: object
+    step: object
+    hessian: object
+    total_charge: object
+    solver: object
+    window: tuple[float, float]
+
+
+@dataclasses.dataclass(frozen=True)
+class _EventData:
+    """The event as dense per-sensor arrays and the response it is read with."""
+
+    hit: jax.Array
+    charge: jax.Array
+    time: jax.Array
+    params: object
+    dark_rate: jax.Array
+    spe_width: jax.Array
+
+
+jax.tree_util.register_dataclass(
+    _EventData, data_fields=["hit", "charge", "time", "params", "dark_rate", "spe_width"],
+    meta_fields=[])
+
+#: Jitted functions per detector object, keyed by (dtype, config).
+_FUNCTIONS: WeakKeyDictionary = WeakKeyDictionary()
+
+
+def _functions(detector, dtype, config: TransportConfig) -> _Functions:
+    """The cached ``_Functions`` of ``detector``."""
+    cached = _FUNCTIONS.setdefault(detector, {})
+    key = (jnp.dtype(dtype).name, config)
+    if key not in cached:
+        cached[key] = _build_functions(detector, dtype, config)
+    return cached[key]
+
+
+def _build_functions(detector, dtype, config: TransportConfig) -> _Functions:
+    predict = expected_function(detector, dtype, config=config)
+    window = tuple(float(x) for x in config.window)
+    threshold = config.charge_threshold if config.charge_threshold > 0 else None
+
+    def track_nll(track, reference, data, use_time=True):
+        prediction = predict(data.params, track, None, reference)
+        return jnp.sum(dense_sensor_nll(prediction, data.hit, data.charge, data.time,
+                                        data.dark_rate, data.spe_width, window,
+                                        charge_threshold=threshold, use_time=use_time))
+
+    def free_nll(free, frame, reference, data, use_time=True):
+        return track_nll(track_from_free(frame, free), reference, data, use_time)
+
+    solver = optax.lbfgs(memory_size=10)
+
+    @functools.partial(jax.jit, static_argnames=("use_time",))
+    def step(free, state, frame, reference, data, use_time=True):
+        objective = functools.partial(free_nll, frame=frame, reference=reference, data=data,
+                                      use_time=use_time)
+        value, gradient = optax.value_and_grad_from_state(objective)(free, state=state)
+        with jax.numpy_dtype_promotion("standard"):  # optax mixes int and float
+            updates, state = solver.update(gradient, state, free, value=value,
+                                           grad=gradient, value_fn=objective)
+        return optax.apply_updates(free, updates), state, value, gradient
+
+    @jax.jit
+    def hessian(local, frame, reference, data):
+        gradient = jax.grad(lambda y: track_nll(track_from_local(frame, y), reference, data))
+        basis = jnp.eye(local.shape[0], dtype=local.dtype)
+        return jax.lax.map(lambda v: jax.jvp(gradient, (local,), (v,))[1], basis)
+
+    @jax.jit
+    def total_charge(track, data):
+        return jnp.sum(predict(data.params, track).charge)
+
+    return _Functions(value=jax.jit(free_nll, static_argnames=("use_time",)), step=step,
+                      hessian=hessian, total_charge=total_charge, solver=solver,
+                      window=window)
+
+
+def _event_data(detector, params, event, dtype, config) -> _EventData:
+    cast = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+    hit, charge, time = hit_arrays(event, detector.n_sensors, dtype)
+    return _EventData(hit=hit, charge=charge, time=time, params=jax.tree.map(cast, params),
+                      dark_rate=cast(params.dark_rate), spe_width=cast(params.spe_width))
+
+
+def _seed(detector, params, event, dtype):
+    """The point-source pre-fit of the event's hit sensors (``seeding``)."""
+    hit, charge, time = (np.asarray(x) for x in hit_arrays(event, detector.n_sensors,
+                                                           np.float64))
+    index = np.flatnonzero(hit)
+    positions = np.asarray(detector.sensor_positions, np.float64)[index]
+    lows, highs = positions.min(axis=0), positions.max(axis=0)
+    group_index = float(np.asarray(params.group_index))
+    cast = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+    return point_source_seed(cast(positions), cast(time[index]), cast(charge[index]),
+                             cast(lows), cast(highs), cast(group_index))
+
+
+def _fit_particle(functions, detector, params, data, seed, particle, method,
+                  settings) -> RecoResult:
+    """The best fit of ``particle`` over the starts."""
+    began = clock.perf_counter()
+    model = emission_model(particle, detector_medium(detector))
+    dtype = data.charge.dtype
+    direction = np.asarray(seed.direction, np.float64)
+    vertex = np.asarray(seed.vertex, np.float64)
+    frame = fit_frame(detector.shape, direction, model.energy_range, particle,
+                      settings.margin, dtype)
+    reference_energy = REFERENCE_ENERGY[particle]
+    probe = Track(particle, frame_inside(frame, vertex), direction, reference_energy,
+                  float(seed.time))
+    observed = float(jnp.sum(data.charge)) - _dark_total(detector, data, functions)
+    predicted = float(functions.total_charge(_cast_track(probe, dtype), data))
+    energy = energy_from_charge(model, observed, predicted, reference_energy)
+    extent = float(model.at(energy).extent)
+    candidates = [(axis, share) for axis in (direction, -direction) for share in START_SHARES]
+    candidates = [(vertex, axis, share) for axis, share in candidates]
+    # the scan also from the detector's centre (the point-source vertex of a small
+    # detector can sit at the wall, among the hits)
+    candidates += [(origin, axis, SCAN_SHARE) for origin in (vertex, np.zeros(3))
+                   for axis in sphere_directions(settings.scan_directions)]
+    starts = []
+    for origin, axis, share in candidates:
+        offset = share * extent
+        start = Track(particle, frame_inside(frame, origin - offset * axis), axis, energy,
+                      float(seed.time) - offset / SPEED_OF_LIGHT)
+        cast = _cast_track(start, dtype)
+        turned = fit_frame(detector.shape, axis, model.energy_range, particle,
+                           settings.margin, dtype)
+        value = float(functions.value(free_from_track(turned, cast), turned, cast, data))
+        starts.append((value, start))
+    starts.sort(key=lambda item: item[0] if math.isfinite(item[0]) else math.inf)
+    fits = []
+    for _, start in starts[: settings.fits]:
+        minimise = _minimise_gradient if method == "gradient" else _minimise_minuit
+        fits.append(minimise(functions, detector, model, data, start, settings))
+    good = [f for f in fits if f.failure is None]
+    best = min(good, key=lambda f: f.nll) if good else fits[0]
+    return dataclasses.replace(best, seconds=clock.perf_counter() - began,
+                               iterations=sum(f.iterations for f in fits),
+                               evaluations=sum(f.evaluations for f in fits) + len(starts) + 1)
+
+
+def frame_inside(frame, vertex) -> np.ndarray:
+    """``vertex`` (m) moved onto the fit's inner volume if it lies outside it."""
+    from .coordinates import free_from_vertex, vertex_from_free
+
+    return np.asarray(vertex_from_free(frame, free_from_vertex(frame, vertex)), np.float64)
+
+
+def _dark_total(detector, data, functions) -> float:
+    """Expected dark-noise charge of the whole detector in the readout window, p.e."""
+    from ..likelihood import dark_expectation
+
+    return float(detector.n_sensors * dark_expectation(data.params, functions.window))
+
+
+def _strong(tree):
+    """``tree`` without weak types (the optimiser's state after a step has none: the
+    same types keep the jitted step from compiling twice)."""
+    return jax.tree.map(lambda x: jnp.array(x, dtype=jnp.asarray(x).dtype), tree)
+
+
+def _cast_track(track: Track, dtype) -> Track:
+    return jax.tree.map(lambda x: jnp.asarray(x, dtype), track)
+
+
+def _moved(a: Track, b: Track, settings) -> bool:
+    """Whether track ``b`` is further from ``a`` than the refresh thresholds."""
+    distance = float(np.linalg.norm(np.asarray(a.position) - np.asarray(b.position)))
+    cosine = float(np.clip(np.dot(np.asarray(a.direction), np.asarray(b.direction)), -1, 1))
+    return distance > settings.refresh_distance or \
+        math.degrees(math.acos(cosine)) > settings.refresh_angle
+
+
+def _concrete(track: Track) -> Track:
+    """A checked, float64 copy of a traced or device track."""
+    return Track(track.particle, np.asarray(track.position, np.float64),
+                 np.asarray(track.direction, np.float64) / np.linalg.norm(
+                     np.asarray(track.direction, np.float64)),
+                 float(track.energy), float(track.time))
+
+
+def _minimise_gradient(functions, detector, model, data, start, settings) -> RecoResult:
+    """L-BFGS from ``start``, with reference refreshes (module docstring)."""
+    dtype = data.charge.dtype
+    reference, iterations, evaluations, converged = start, 0, 0, False
+    value = math.nan
+    for stage in range(settings.refreshes + 2):
+        use_time = stage > 0  # a charge-only stage first: its landscape is smoother
+        frame = fit_frame(detector.shape, reference.direction, model.energy_range,
+                          start.particle, settings.margin, dtype)
+        free = free_from_track(frame, _cast_track(reference, dtype))
+        state = _strong(functions.solver.init(free))
+        history = []
+        converged = False
+        for _ in range(settings.max_iterations):
+            stepped, state, value_, gradient = functions.step(
+                free, state, frame, _cast_track(reference, dtype), data, use_time=use_time)
+            value = float(value_)
+            iterations += 1
+            evaluations += 1 + int(optax.tree_utils.tree_get(state, "num_linesearch_steps"))
+            if not math.isfinite(value):
+                return _failure("the likelihood is not finite", start, iterations)
+            if not np.all(np.isfinite(np.asarray(gradient))):
+                return _failure("the gradient is not finite", start, iterations)
+            if not np.all(np.isfinite(np.asarray(stepped))):
+                # the line search ran off (no finite step): keep the last point and stop
+                # here, not converged
+                converged = False
+                break
+            free = stepped
+            history.append(value)
+            if len(history) > settings.patience and all(
+                    history[-k - 1] - history[-k] < settings.tolerance
+                    for k in range(1, settings.patience + 1)):
+                converged = True
+                break
+        fitted = _concrete(track_from_free(frame, free))
+        moved = _moved(reference, fitted, settings)
+        reference = fitted
+        if use_time and not moved:
+            break
+    value = float(functions.value(free_from_track(frame, _cast_track(reference, dtype)), frame,
+                                  _cast_track(reference, dtype), data))
+    covariance = _covariance(functions, detector, model, data, reference)
+    return RecoResult(position=np.asarray(reference.position), time=float(reference.time),
+                      direction=np.asarray(reference.direction),
+                      energy=float(reference.energy), covariance=covariance, nll=value,
+                      particle=start.particle, converged=converged, iterations=iterations,
+                      seconds=0.0, method="gradient", evaluations=evaluations)
+
+
+def _covariance(functions, detector, model, data, track) -> np.ndarray:
+    """Inverse Hessian of the negative log-likelihood at ``track`` in ``LOCAL``
+    coordinates (NaN where the Hessian is not positive definite)."""
+    dtype = data.charge.dtype
+    frame = fit_frame(detector.shape, track.direction, model.energy_range, track.particle,
+                      0.0, dtype)
+    cast = _cast_track(track, dtype)
+    hessian = np.asarray(functions.hessian(local_from_track(cast, dtype), frame, cast, data),
+                         np.float64)
+    hessian = 0.5 * (hessian + hessian.T)
+    try:
+        np.linalg.cholesky(hessian)
+    except np.linalg.LinAlgError:
+        return np.full_like(hessian, np.nan)
+    return np.linalg.inv(hessian)
+
+
+def _failure(reason, start, iterations) -> RecoResult:
+    result = RecoResult.failed(reason, start.particle, "gradient", 0.0)
+    return dataclasses.replace(result, iterations=iterations)
+
+
+def _minimise_minuit(functions, detector, model, data, start, settings) -> RecoResult:
+    """MIGRAD (numerical derivatives) from ``start``, errors by HESSE, with the same
+    reference refreshes."""
+    from iminuit import Minuit
+
+    dtype = data.charge.dtype
+    reference, iterations, evaluations, converged = start, 0, 0, False
+    minuit = None
+    for _ in range(settings.refreshes + 1):
+        frame = fit_frame(detector.shape, reference.direction, model.energy_range,
+                          start.particle, settings.margin, dtype)
+        fixed = _cast_track(reference, dtype)
+
+        def objective(x, frame=frame, fixed=fixed):
+            return float(functions.value(jnp.asarray(x, dtype), frame, fixed, data))
+
+        free = np.asarray(free_from_track(frame, fixed), np.float64)
+        minuit = Minuit(objective, free, name=FREE_NAMES)
+        minuit.errordef = Minuit.LIKELIHOOD
+        minuit.errors = INITIAL_STEPS
+        minuit.migrad(ncall=settings.max_iterations * 20)
+        evaluations += minuit.nfcn
+        iterations += 1
+        converged = bool(minuit.valid)
+        if not math.isfinite(minuit.fval):
+            return _failure("the likelihood is not finite", start, evaluations)
+        fitted = _concrete(track_from_free(frame, jnp.asarray(np.asarray(minuit.values),
+                                                              dtype)))
+        moved = _moved(reference, fitted, settings)
+        reference = fitted
+        if not moved:
+            break
+    minuit.hesse()
+    evaluations += minuit.nfcn
+    covariance = _local_covariance(frame, np.asarray(minuit.values), reference,
+                                   np.asarray(minuit.covariance, np.float64), dtype)
+    return RecoResult(position=np.asarray(reference.position), time=float(reference.time),
+                      direction=np.asarray(reference.direction),
+                      energy=float(reference.energy), covariance=covariance,
+                      nll=float(minuit.fval), particle=start.particle, converged=converged,
+                      iterations=iterations, seconds=0.0, method="minuit",
+                      evaluations=evaluations)
+
+
+#: Names of the free coordinates (``coordinates``), for MINUIT.
+FREE_NAMES = ("q1", "q2", "q3", "t", "a", "b", "eta")
+#: MINUIT's first step sizes in the free coordinates (about 10 cm at the centre of SK,
+#: 1 ns, 1 degree, a few % of the energy).
+INITIAL_STEPS = (0.01, 0.01, 0.01, 1.0, 0.02, 0.02, 0.05)
+
+
+def _local_covariance(frame, free, fitted: Track, covariance, dtype) -> np.ndarray:
+    """A covariance of the free coordinates at ``free`` as one in ``LOCAL`` coordinates
+    about the ``fitted`` track (the Jacobian of the coordinate change)."""
+    axis = jnp.asarray(fitted.direction, dtype)
+    local_frame = fit_frame_like(frame, axis)
+
+    def local(x):
+        track = track_from_free(frame, x)
+        along = jnp.sum(track.direction * local_frame.axis)
+        return jnp.concatenate([track.position, jnp.stack([
+            track.time, jnp.sum(track.direction * local_frame.first) / along,
+            jnp.sum(track.direction * local_frame.second) / along, jnp.log(track.energy)])])
+
+    jacobian = np.asarray(jax.jacfwd(local)(jnp.asarray(free, dtype)), np.float64)
+    return jacobian @ covariance @ jacobian.T
+
+
+def fit_frame_like(frame, axis):
+    """``frame`` turned to the direction ``axis`` (3,)."""
+    from ..transport.optics import orthonormal_basis
+
+    axis = axis / jnp.linalg.norm(axis)
+    first, second = orthonormal_basis(axis)
+    return dataclasses.replace(frame, axis=axis, first=first, second=second)

@@ -1,0 +1,75 @@
+"""The result of one event's reconstruction."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from .coordinates import LOCAL
+
+
+@dataclasses.dataclass(frozen=True)
+class RecoResult:
+    """A fitted track and what is known about the fit.
+
+    Attributes:
+        position: (3,) vertex (the track's start), m.
+        time: start time, ns.
+        direction: (3,) unit vector.
+        energy: kinetic energy, MeV.
+        covariance: (7, 7) inverse of the observed Fisher information (the Hessian of
+            the negative log-likelihood) at the optimum, in the coordinates
+            ``coordinates.LOCAL``: x, y, z (m), t (ns), two angles about the fitted
+            direction (rad), ln E; NaN when the Hessian is not positive definite.
+        nll: the minimum negative log-likelihood.
+        particle: the particle of the fit ("mu-" or "e-").
+        converged: the fit ended at a minimum (a small step and gradient).
+        iterations: optimiser iterations (summed over the starts fitted).
+        seconds: wall time of the whole reconstruction, s.
+        failure: None, or why the fit failed (one line).
+        log_likelihood_ratio: for ``particle="auto"``, nll(mu-) - nll(e-) at the two
+            minima (positive: the event is more e-like); else None.
+        method: "gradient" or "minuit".
+        evaluations: likelihood evaluations (value or value and gradient).
+    """
+
+    position: np.ndarray
+    time: float
+    direction: np.ndarray
+    energy: float
+    covariance: np.ndarray
+    nll: float
+    particle: str
+    converged: bool
+    iterations: int
+    seconds: float
+    failure: str | None = None
+    log_likelihood_ratio: float | None = None
+    method: str = "gradient"
+    evaluations: int = 0
+
+    @property
+    def errors(self) -> dict[str, float]:
+        """1-sigma errors from the covariance: ``x``, ``y``, ``z`` (m), ``time`` (ns),
+        ``direction_deg`` (the rms of the two angle errors, degrees: the 1-sigma error
+        of the direction along any one axis across it) and ``energy_frac`` (the
+        fractional energy error)."""
+        variance = np.diag(np.asarray(self.covariance, np.float64))
+        sd = np.sqrt(np.where(variance >= 0, variance, np.nan))
+        return {
+            "x": float(sd[0]), "y": float(sd[1]), "z": float(sd[2]), "time": float(sd[3]),
+            "direction_deg": math.degrees(math.sqrt(0.5 * (variance[4] + variance[5])))
+            if variance[4] >= 0 and variance[5] >= 0 else math.nan,
+            "energy_frac": float(sd[6]),
+        }
+
+    @classmethod
+    def failed(cls, reason: str, particle: str, method: str, seconds: float) -> RecoResult:
+        """A result of no fit: NaN values and ``failure`` = ``reason``."""
+        nan3 = np.full(3, np.nan)
+        return cls(position=nan3, time=math.nan, direction=nan3, energy=math.nan,
+                   covariance=np.full((len(LOCAL), len(LOCAL)), np.nan), nll=math.nan,
+                   particle=particle, converged=False, iterations=0, seconds=seconds,
+                   failure=reason, method=method)
