@@ -117,7 +117,8 @@ class RecoSettings:
 
 def reconstruct(detector, params, event, particle: str = "mu-", method: str = "gradient",
                 *, config: TransportConfig | None = None,
-                settings: RecoSettings | None = None) -> RecoResult:
+                settings: RecoSettings | None = None,
+                start: Track | None = None) -> RecoResult:
     """Reconstruct one event (module docstring): the maximum-likelihood track of
     ``particle`` ("mu-", "e-" or "auto": both, the likelier kept, with their
     log-likelihood ratio) by ``method`` ("gradient" or "minuit").
@@ -127,6 +128,9 @@ def reconstruct(detector, params, event, particle: str = "mu-", method: str = "g
         config: transport settings of the prediction (default ``TransportConfig()``;
             its window and charge threshold are the event's readout's).
         settings: ``RecoSettings`` (default ``RecoSettings()``).
+        start: None (seed from the hits), or the one ``Track`` to start the fit from
+            (a refit, or a comparison of minimisers from one point); its particle is
+            the fit's.
 
     Returns:
         A ``RecoResult``; an event that cannot be fitted (no hits, non-finite hits,
@@ -141,6 +145,8 @@ def reconstruct(detector, params, event, particle: str = "mu-", method: str = "g
         raise ConfigError(f"particle = {particle!r}: must be one of {', '.join(PARTICLES)}")
     if method not in METHODS:
         raise ConfigError(f"method = {method!r}: must be one of {', '.join(METHODS)}")
+    if start is not None:
+        particle = start.particle
     settings = RecoSettings() if settings is None else settings
     config = TransportConfig() if config is None else config
     problem = event_problem(event, detector.n_sensors)
@@ -151,7 +157,7 @@ def reconstruct(detector, params, event, particle: str = "mu-", method: str = "g
         dtype = jnp.dtype(settings.dtype or precision or default_float_dtype())
         functions = _functions(detector, dtype, config)
         data = _event_data(detector, params, event, dtype, config)
-        seed = _seed(detector, params, event, dtype)
+        seed = _seed(detector, params, event, dtype) if start is None else start
         hypotheses = ("mu-", "e-") if particle == "auto" else (particle,)
         results = {}
         for hypothesis in hypotheses:
@@ -290,9 +296,14 @@ def _seed(detector, params, event, dtype):
 
 def _fit_particle(functions, detector, params, data, seed, particle, method,
                   settings) -> RecoResult:
-    """The best fit of ``particle`` over the starts."""
+    """The best fit of ``particle`` over the starts (``seed``: a ``seeding.Seed``, or a
+    ``Track``: the only start)."""
     began = clock.perf_counter()
     model = emission_model(particle, detector_medium(detector))
+    minimise = _minimise_gradient if method == "gradient" else _minimise_minuit
+    if isinstance(seed, Track):
+        fit = minimise(functions, detector, model, data, seed, settings)
+        return dataclasses.replace(fit, seconds=clock.perf_counter() - began)
     dtype = data.charge.dtype
     direction = np.asarray(seed.direction, np.float64)
     vertex = np.asarray(seed.vertex, np.float64)
@@ -324,7 +335,6 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
     starts.sort(key=lambda item: item[0] if math.isfinite(item[0]) else math.inf)
     fits = []
     for _, start in starts[: settings.fits]:
-        minimise = _minimise_gradient if method == "gradient" else _minimise_minuit
         fits.append(minimise(functions, detector, model, data, start, settings))
     good = [f for f in fits if f.failure is None]
     best = min(good, key=lambda f: f.nll) if good else fits[0]
