@@ -30,15 +30,14 @@ from pathlib import Path
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ..pytree import pytree_dataclass, static_field
 from .spline import (
     FOOTPRINT_STEP,
     FOOTPRINT_WIDTHS,
+    EnergyNodes,
     SplineEmission,
     _cell_widths,
-    natural_energy_weights,
     time_offset_moments,
 )
 
@@ -153,7 +152,7 @@ def _evaluate(network, energy, footprint, x, cos):
 
 
 @pytree_dataclass
-class SirenEmission:
+class SirenEmission(EnergyNodes):
     """A SIREN model of one emission table (module docstring); the interface of
     ``spline.SplineEmission``.
 
@@ -177,20 +176,6 @@ class SirenEmission:
     total_yield: jax.Array
     particle: str = static_field(default="mu-")
     medium: str = static_field(default="water")
-
-    @property
-    def energy_range(self) -> tuple[float, float]:
-        """(threshold, largest node) kinetic energy, MeV."""
-        log_energy = np.asarray(self.log_energy)
-        return float(np.exp(log_energy[0])), float(np.exp(log_energy[-1]))
-
-    def energy_weights(self, energy):
-        """(K,) natural-cubic-spline weights in log E (``spline.natural_energy_weights``)."""
-        return natural_energy_weights(self.log_energy, energy)
-
-    def yield_at(self, energy):
-        """Photons per particle at kinetic ``energy`` (MeV, clamped)."""
-        return jnp.maximum(self.energy_weights(energy) @ self.total_yield, 0.0)
 
     def at(self, energy) -> SirenSlice:
         """The model at kinetic ``energy`` (MeV, clamped to ``energy_range``)."""

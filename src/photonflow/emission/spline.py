@@ -122,8 +122,29 @@ def time_offset_moments(piece, s):
     return mean, jnp.maximum(variance, 0.0)
 
 
+class EnergyNodes:
+    """The energy axis shared by the emission models: nodes ``log_energy`` (K,) log(MeV)
+    (the first the Cherenkov threshold) and ``total_yield`` (K,) photons per particle,
+    interpolated by a natural cubic spline in log E."""
+
+    @property
+    def energy_range(self) -> tuple[float, float]:
+        """(threshold, largest node) kinetic energy, MeV."""
+        log_energy = np.asarray(self.log_energy)
+        return float(np.exp(log_energy[0])), float(np.exp(log_energy[-1]))
+
+    def energy_weights(self, energy):
+        """(K,) weights w_k with f(E) = sum_k w_k f_k for the natural cubic spline in
+        log E; E (MeV) clamped to ``energy_range``."""
+        return natural_energy_weights(self.log_energy, energy)
+
+    def yield_at(self, energy):
+        """Photons per particle at kinetic energy ``energy`` (MeV, clamped)."""
+        return jnp.maximum(self.energy_weights(energy) @ self.total_yield, 0.0)
+
+
 @pytree_dataclass
-class SplineEmission:
+class SplineEmission(EnergyNodes):
     """A C2 spline model of one emission table (module docstring).
 
     Attributes:
@@ -151,17 +172,6 @@ class SplineEmission:
     particle: str = static_field(default="mu-")
     medium: str = static_field(default="water")
 
-    @property
-    def energy_range(self) -> tuple[float, float]:
-        """(threshold, largest node) kinetic energy, MeV."""
-        log_energy = np.asarray(self.log_energy)
-        return float(np.exp(log_energy[0])), float(np.exp(log_energy[-1]))
-
-    def energy_weights(self, energy):
-        """(K,) weights w_k with f(E) = sum_k w_k f_k for the natural cubic spline in
-        log E; E (MeV) clamped to ``energy_range``."""
-        return natural_energy_weights(self.log_energy, energy)
-
     def at(self, energy) -> EmissionSlice:
         """The model at kinetic energy ``energy`` (MeV, clamped to ``energy_range``)."""
         weights = self.energy_weights(energy)
@@ -183,10 +193,6 @@ class SplineEmission:
             scale=jnp.where(knots_sum > 0, total_yield / safe, 0.0) / extent,
             total_yield=total_yield,
         )
-
-    def yield_at(self, energy):
-        """Photons per particle at kinetic energy ``energy`` (MeV, clamped)."""
-        return jnp.maximum(self.energy_weights(energy) @ self.total_yield, 0.0)
 
     def density(self, energy, s, cos):
         """d^2N / ds dcos (photons per particle per m per unit cos) at one energy (MeV)

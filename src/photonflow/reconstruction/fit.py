@@ -392,13 +392,14 @@ def _minimise_gradient(functions, detector, model, data, start, settings) -> Rec
         use_time = stage > 0  # a charge-only stage first: its landscape is smoother
         frame = fit_frame(detector.shape, reference.direction, model.energy_range,
                           start.particle, settings.margin, dtype)
-        free = free_from_track(frame, _cast_track(reference, dtype))
+        fixed = _cast_track(reference, dtype)
+        free = free_from_track(frame, fixed)
         state = _strong(functions.solver.init(free))
         history = []
         converged = False
         for _ in range(settings.max_iterations):
             stepped, state, value_, gradient = functions.step(
-                free, state, frame, _cast_track(reference, dtype), data, use_time=use_time)
+                free, state, frame, fixed, data, use_time=use_time)
             value = float(value_)
             iterations += 1
             evaluations += 1 + int(optax.tree_utils.tree_get(state, "num_linesearch_steps"))
