@@ -343,6 +343,7 @@ def dense_sensor_nll(
     *,
     charge_threshold: float | None = None,
     use_time: bool = True,
+    time_weight: jax.Array | None = None,
 ) -> jax.Array:
     """``sensor_nll`` on dense per-sensor arrays (one event; vmap it over events).
 
@@ -353,6 +354,9 @@ def dense_sensor_nll(
         dark_rate: dark-noise rate per sensor, Hz; spe_width: single-p.e. width, p.e.
         window: readout window (t0, t1), ns (static).
         charge_threshold, use_time: as in ``sensor_nll``.
+        time_weight: None, or a factor (dimensionless, not static) on the first-hit time
+            term: one compiled program serves a charge-only (0) and a full (1)
+            likelihood.
 
     Returns:
         (N,) ``-log P`` per sensor.
@@ -368,7 +372,10 @@ def dense_sensor_nll(
     log_hit = log1mexp(mu)
     log_hit = log_hit + charge_logpdf(q, mu, width)
     if use_time:
-        log_hit = log_hit + first_hit_logpdf(prediction, t, mu_dark, window)
+        time_term = first_hit_logpdf(prediction, t, mu_dark, window)
+        if time_weight is not None:
+            time_term = jnp.asarray(time_weight, dtype=dtype) * time_term
+        log_hit = log_hit + time_term
     if charge_threshold is None:
         log_unhit = -mu
     else:

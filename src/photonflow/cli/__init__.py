@@ -7,7 +7,8 @@ nothing behind.
 
 One module per idea: ``root`` (the typer app, its shared helpers and ``main``),
 ``show`` (presets, geometry, info, display), ``simulate`` with ``light`` (its
-calibration source or particle tracks), ``calibrate``, ``demo``, ``benchmark`` and
+calibration source or particle tracks), ``calibrate``, ``reconstruct`` (with
+``evaluate``), ``demo``, ``benchmark`` and
 ``tables``. This package registers the commands on ``app`` in the order that
 ``photonflow --help`` lists them.
 """
@@ -15,7 +16,7 @@ calibration source or particle tracks), ``calibrate``, ``demo``, ``benchmark`` a
 from __future__ import annotations
 
 from ..interrupts import terminate_as_interrupt
-from . import calibrate, demo, show, simulate
+from . import calibrate, demo, reconstruct, show, simulate
 from .benchmark import benchmark_app
 from .root import app, command, main
 from .tables import tables_app
@@ -23,7 +24,8 @@ from .tables import tables_app
 __all__ = ["app", "main", "terminate_as_interrupt"]
 
 for _function in (show.presets, show.geometry, show.info, simulate.simulate, show.display,
-                  calibrate.calibrate, demo.demo):
+                  calibrate.calibrate, reconstruct.reconstruct, reconstruct.evaluate,
+                  demo.demo):
     command(_function)
 del _function
 app.add_typer(benchmark_app, name="benchmark")

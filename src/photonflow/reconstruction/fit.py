@@ -238,21 +238,22 @@ def _build_functions(detector, dtype, config: TransportConfig) -> _Functions:
     window = tuple(float(x) for x in config.window)
     threshold = config.charge_threshold if config.charge_threshold > 0 else None
 
-    def track_nll(track, reference, data, use_time=True):
+    def track_nll(track, reference, data, time_weight=1.0):
         prediction = predict(data.params, track, None, reference)
+        weight = jnp.asarray(time_weight, data.charge.dtype)
         return jnp.sum(dense_sensor_nll(prediction, data.hit, data.charge, data.time,
                                         data.dark_rate, data.spe_width, window,
-                                        charge_threshold=threshold, use_time=use_time))
+                                        charge_threshold=threshold, time_weight=weight))
 
-    def free_nll(free, frame, reference, data, use_time=True):
-        return track_nll(track_from_free(frame, free), reference, data, use_time)
+    def free_nll(free, frame, reference, data, time_weight=1.0):
+        return track_nll(track_from_free(frame, free), reference, data, time_weight)
 
     solver = optax.lbfgs(memory_size=10)
 
-    @functools.partial(jax.jit, static_argnames=("use_time",))
-    def step(free, state, frame, reference, data, use_time=True):
+    @jax.jit
+    def step(free, state, frame, reference, data, time_weight):
         objective = functools.partial(free_nll, frame=frame, reference=reference, data=data,
-                                      use_time=use_time)
+                                      time_weight=time_weight)
         value, gradient = optax.value_and_grad_from_state(objective)(free, state=state)
         with jax.numpy_dtype_promotion("standard"):  # optax mixes int and float
             updates, state = solver.update(gradient, state, free, value=value,
@@ -269,7 +270,7 @@ def _build_functions(detector, dtype, config: TransportConfig) -> _Functions:
     def total_charge(track, data):
         return jnp.sum(predict(data.params, track).charge)
 
-    return _Functions(value=jax.jit(free_nll, static_argnames=("use_time",)), step=step,
+    return _Functions(value=jax.jit(free_nll), step=step,
                       hessian=hessian, total_charge=total_charge, solver=solver,
                       window=window)
 
@@ -399,7 +400,7 @@ def _minimise_gradient(functions, detector, model, data, start, settings) -> Rec
         converged = False
         for _ in range(settings.max_iterations):
             stepped, state, value_, gradient = functions.step(
-                free, state, frame, fixed, data, use_time=use_time)
+                free, state, frame, fixed, data, jnp.asarray(float(use_time), dtype))
             value = float(value_)
             iterations += 1
             evaluations += 1 + int(optax.tree_utils.tree_get(state, "num_linesearch_steps"))

@@ -12,14 +12,10 @@ m, times ns, charges p.e.
 
 from __future__ import annotations
 
-import collections
-import contextlib
-import logging
-import numbers
-import signal
 from collections.abc import Iterator
 
-from ..errors import ConfigError, format_value
+from ..cluster import BLOCKS_PER_WORKER, check_count, dask_client, ordered_results
+from ..errors import ConfigError
 from ..generator import GeneratorSettings
 from ..geometry.detector import Detector
 from ..io.events import Event
@@ -28,16 +24,8 @@ from ..progress import with_progress
 from .optics import DEFAULT_CONFIG, TransportConfig
 from .pseudo_data import sample_events
 
-#: Blocks kept in flight per worker (bounds the parent's memory for out-of-order blocks).
-BLOCKS_PER_WORKER = 4
 #: Largest default block, events.
 MAX_BLOCK_EVENTS = 8
-
-
-def _check_count(name: str, value, minimum: int) -> int:
-    if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < minimum:
-        raise ConfigError(f"{name} = {format_value(value)}: must be an integer >= {minimum}")
-    return int(value)
 
 
 def block_size(n_events: int, n_workers: int) -> int:
@@ -56,96 +44,20 @@ def sample_block(detector, params, source, seed, first_event, n_events, config, 
     )
 
 
-@contextlib.contextmanager
-def dask_client(workers: int | None = None, scheduler: str | None = None):
-    """A ``distributed.Client``: of a new local cluster of ``workers`` processes with one
-    thread each (closed on exit), or connected to the scheduler at ``scheduler``.
-
-    Raises:
-        ConfigError: not exactly one of the two, workers < 1, or no scheduler there.
-    """
-    if (workers is None) == (scheduler is None):
-        raise ConfigError("workers / scheduler: give exactly one for a Dask production")
-    from distributed import Client, LocalCluster
-
-    with contextlib.ExitStack() as stack:
-        if scheduler is None:
-            n_workers = _check_count("workers", workers, 1)
-            # Ctrl-C stops the parent, which closes the cluster; a worker's error reaches
-            # the parent as its task's, so the cluster's own logs (which, when it is
-            # closed while starting, are tracebacks of lost heartbeats) stay silent
-            with _sigint_ignored():
-                cluster = stack.enter_context(LocalCluster(
-                    n_workers=n_workers, threads_per_worker=1, processes=True,
-                    dashboard_address=None, silence_logs=logging.CRITICAL,
-                ))
-            client = stack.enter_context(Client(cluster))
-        else:
-            try:
-                client = stack.enter_context(Client(scheduler, timeout="15s"))
-            except (OSError, TimeoutError, ValueError) as error:
-                reason = " ".join(str(error).split()) or type(error).__name__
-                raise ConfigError(
-                    f"scheduler = {scheduler!r}: cannot connect ({reason})"
-                ) from None
-        try:
-            yield client
-        except (KeyboardInterrupt, GeneratorExit):
-            # a cluster closed while busy logs the tasks it drops: the run stops anyway
-            for name in ("asyncio", "distributed", "tornado"):
-                logging.getLogger(name).setLevel(logging.CRITICAL + 1)
-            raise
-
-
-@contextlib.contextmanager
-def _sigint_ignored():
-    """Ignore SIGINT within the block (in the main thread), so that worker processes
-    started in it inherit that: a Ctrl-C, sent to the whole process group, then reaches
-    only the parent, which stops the run and closes the cluster cleanly."""
-    try:
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    except ValueError:  # not the main thread
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def _dask_events(client, detector, params, source, seed, first_event, n_events, block,
                  config, medium, generator) -> Iterator[Event]:
-    """Yield the events of Dask tasks of ``block`` events each, in event order, keeping
-    ``BLOCKS_PER_WORKER`` blocks per worker in flight."""
-    n_workers = max(1, len(client.scheduler_info().get("workers", {})))
-    detector_f, params_f = client.scatter([detector, params], broadcast=True, hash=False)
+    """Yield the events of Dask tasks of ``block`` events each, in event order."""
     per_event = isinstance(source, list | tuple)
-    starts = iter(range(first_event, first_event + n_events, block))
-    pending = collections.deque()
 
-    def submit() -> bool:
-        start = next(starts, None)
-        if start is None:
-            return False
-        count = min(block, first_event + n_events - start)
-        sources = source[start - first_event : start - first_event + count] if per_event \
-            else source
-        pending.append(client.submit(
-            sample_block, detector_f, params_f, sources, seed, start, count, config,
-            medium, generator, pure=False,
-        ))
-        return True
+    def blocks():
+        for start in range(first_event, first_event + n_events, block):
+            count = min(block, first_event + n_events - start)
+            sources = source[start - first_event : start - first_event + count] \
+                if per_event else source
+            yield sources, seed, start, count, config, medium, generator
 
-    try:
-        while len(pending) < BLOCKS_PER_WORKER * n_workers and submit():
-            pass
-        while pending:
-            events = pending.popleft().result()
-            submit()
-            yield from events
-    finally:
-        for future in pending:
-            future.cancel()
+    for events in ordered_results(client, sample_block, (detector, params), blocks()):
+        yield from events
 
 
 def produce_events(
@@ -187,8 +99,8 @@ def produce_events(
             sequence of sources, the first; the others in their tasks); an error in a
             task is raised again here.
     """
-    n_events = _check_count("n_events", n_events, 0)
-    first_event = _check_count("first_event", first_event, 0)
+    n_events = check_count("n_events", n_events, 0)
+    first_event = check_count("first_event", first_event, 0)
     options = {"config": config, "medium": medium, "generator": generator}
     if workers is None and scheduler is None:
         events = sample_events(detector, params, source, seed, n_events,
@@ -197,14 +109,14 @@ def produce_events(
     if workers is not None and scheduler is not None:
         raise ConfigError(f"workers = {workers} and scheduler = {scheduler!r}: choose one")
     if workers is not None:
-        _check_count("workers", workers, 1)
+        check_count("workers", workers, 1)
     per_event = isinstance(source, list | tuple)
     if per_event and len(source) != n_events:
         raise ConfigError(f"{len(source)} sources for n_events = {n_events}: need one per event")
     if n_events:  # check params, config, seed, medium and the first source (no event made)
         first = source[0] if per_event else source
         list(sample_events(detector, params, first, seed, 0, **options))
-    block = block_size(n_events, workers or 1) if block_events is None else _check_count(
+    block = block_size(n_events, workers or 1) if block_events is None else check_count(
         "block_events", block_events, 1)
     return _with_progress(
         _cluster_events(detector, params, source, seed, first_event, n_events, block,
