@@ -28,7 +28,8 @@ from photonflow.io.reco_file import RecoTable, read_reco
 from photonflow.reconstruction.batch import reconstruct_events
 from photonflow.reconstruction.evaluation import summarize
 
-FAST = ["--bounces", "0", "--fits", "1", "--scan-directions", "0", "--max-iterations", "12"]
+#: Short fits (the file's content and the job's bookkeeping are under test, not the fits).
+FAST = ["--bounces", "0", "--fits", "1", "--scan-directions", "0", "--max-iterations", "3"]
 CONFIG = pf.TransportConfig(n_bounces=0)
 
 
@@ -104,7 +105,7 @@ def test_the_reference_job_records_every_event(folder):
     fitted = [0, 1, 3]
     assert np.all(np.isfinite(table.reco["position"][fitted]))
     assert np.all(np.isfinite(table.reco["nll"][fitted]))
-    assert np.all(table.reco["iterations"][fitted] >= 12)
+    assert set(table.reco["particle"]) == {"mu-"}
     assert np.isnan(table.reco["energy"][2]) and table.truth["particle"][2] == ""
 
 

@@ -231,6 +231,8 @@ class RecoWriter:
             h5.close()
         _fsync(self.partial)
         if exc_type is not None:
+            if self._n == 0:  # nothing to resume: leave nothing behind
+                self.partial.unlink(missing_ok=True)
             return  # the partial file stays, to be resumed
         if self.mode == "create" and self.path.exists():
             raise EventFileError(f"{self.path}: file appeared while writing")

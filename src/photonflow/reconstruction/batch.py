@@ -15,7 +15,7 @@ import traceback
 from collections.abc import Iterator, Sequence
 
 from ..cluster import check_count, dask_client, ordered_results
-from ..errors import ConfigError, PhotonflowError
+from ..errors import ConfigError
 from ..transport.optics import TransportConfig
 from .fit import METHODS, PARTICLES, RecoSettings, reconstruct
 from .result import RecoResult
@@ -38,8 +38,7 @@ def reconstruct_or_fail(detector, params, event, particle: str, method: str,
             raise
         text = " ".join(str(error).split()) or traceback.format_exception_only(error)[-1]
         reason = f"error: {type(error).__name__}: {text}"[:400]
-        return RecoResult.failed(reason, particle if particle != "auto" else "mu-", method,
-                                 clock.perf_counter() - began)
+        return RecoResult.failed(reason, particle, method, clock.perf_counter() - began)
 
 
 def reconstruct_block(detector, params, events, particle, method, config,
@@ -111,5 +110,3 @@ def _cluster_results(detector, params, events, particle, method, config, setting
                                        blocks()):
             yield from results
 
-
-__all__ = ["PhotonflowError", "reconstruct_events", "reconstruct_or_fail"]

@@ -101,9 +101,11 @@ def _metrics(table, errors, rows, auto: bool) -> dict:
     median = np.median(pick["energy_frac"][np.isfinite(pick["energy_frac"])]) \
         if np.any(np.isfinite(pick["energy_frac"])) else math.nan
     misid = None
-    if auto and fitted.any():
-        true = [_family(p) for p in table.truth["particle"][fitted]]
-        found = [_family(p) for p in table.reco["particle"][fitted]]
+    known = np.array([_family(p) in ("mu", "e") for p in table.truth["particle"]], bool)
+    fitted_known = fitted & known
+    if auto and fitted_known.any():
+        true = [_family(p) for p in table.truth["particle"][fitted_known]]
+        found = [_family(p) for p in table.reco["particle"][fitted_known]]
         misid = float(np.mean([a != b for a, b in zip(true, found, strict=True)]))
     seconds = table.reco["seconds"][rows]
     return {
