@@ -383,3 +383,24 @@ def test_prediction_time_functions():
     grad = jax.jit(jax.grad(lambda p: jnp.sum(p.time_logpdf(t))))(prediction)
     for leaf in jax.tree_util.tree_leaves(grad):
         assert np.all(np.isfinite(np.asarray(leaf)))
+
+
+def test_second_derivatives_stay_finite_with_a_vanishing_component():
+    """A time-mixture component with 2e-21 of a sensor's light (a quadrature panel far
+    from the Cherenkov peak, as in SK) leaves the float32 Hessian of the first-hit time
+    density finite (it was -inf through log w, and the SK likelihood's Hessian NaN), and
+    the density unchanged to 1e-6."""
+    weights = jnp.asarray([[2e-21, 0.23, 0.76, 0.01]], jnp.float32)
+    weights = weights / jnp.sum(weights)
+
+    def log_density(w):
+        prediction = Prediction(jnp.asarray([1.1], jnp.float32), w,
+                                jnp.asarray([[20.0, 25.0, 30.0, 60.0]], jnp.float32),
+                                jnp.asarray([[1.0, 3.0, 8.0, 20.0]], jnp.float32))
+        return prediction.time_logpdf(jnp.asarray([185.0], jnp.float32))[0]
+
+    hessian = jax.hessian(log_density)(weights)
+    assert np.all(np.isfinite(np.asarray(hessian)))
+    without = weights.at[0, 0].set(0.0)
+    assert float(log_density(weights)) == pytest.approx(float(log_density(without)),
+                                                        abs=1e-6)

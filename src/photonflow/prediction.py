@@ -24,6 +24,13 @@ from jax.scipy.special import log_ndtr, ndtr
 from .numerics import where
 from .pytree import pytree_dataclass, static_field
 
+#: Time-mixture components lighter than this share of a sensor's light are left out of
+#: its log density: the second derivative of log w, -1 / w^2, overflows float32 below
+#: w ~ 1e-19 (a quadrature panel far from the Cherenkov peak holds ~1e-21 of the light,
+#: and the Hessian of the SK likelihood was NaN); such a component changes the density
+#: by less than 1e-15 of itself, and the dark noise outweighs it anyway.
+WEIGHT_FLOOR = 1e-15
+
 _HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
@@ -107,12 +114,12 @@ class Prediction:
             (N,) log f_j(t_j), log(1/ns). Finite (a large negative number) far in the
             tails; computed as a log-sum-exp over the components of positive weight,
             shifted by the largest term, so no term overflows or vanishes whatever the
-            time (components of zero weight contribute nothing, to the value or the
-            gradient).
+            time (components of weight below ``WEIGHT_FLOOR`` contribute nothing, to the
+            value or to the derivatives of any order).
         """
         log_component = self._log_components(t)
         w = self.time_weight
-        used = w > 0
+        used = w > WEIGHT_FLOOR
         terms = where(used, jnp.log(where(used, w, 1.0)) + log_component, -jnp.inf)
         shift = jax.lax.stop_gradient(jnp.max(terms, axis=1, keepdims=True))
         shift = where(jnp.isfinite(shift), shift, 0.0)
