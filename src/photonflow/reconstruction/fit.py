@@ -92,7 +92,9 @@ class RecoSettings:
             direction and its opposite.
         max_iterations: optimiser iterations per fit stage.
         tolerance: a fit stage ends when the negative log-likelihood fell by less than
-            this in each of the last ``patience`` iterations.
+            this in each of the last ``patience`` iterations (0.01: a change of the
+            likelihood far below one standard deviation's 0.5, and above float32's
+            resolution of an SK event's ~3e4).
         patience: see ``tolerance``.
         refreshes: most reference refreshes per fit.
         refresh_distance: m, and ``refresh_angle``, degrees: how far the fitted track
@@ -106,7 +108,7 @@ class RecoSettings:
     fits: int = 2
     scan_directions: int = 8
     max_iterations: int = 200
-    tolerance: float = 1e-3
+    tolerance: float = 1e-2
     patience: int = 3
     refreshes: int = 2
     refresh_distance: float = 0.05
