@@ -5,8 +5,8 @@ one-line result and the files it wrote; ``run_demo`` runs them in order with a r
 status display. The steps show the detector presets, draw the sensor layouts of the
 default cylinder (SK) and sphere (JUNO), simulate a calibration run in SK with its
 event display, simulate a muon and an electron in SK and draw them against their
-expected-mode predictions, and calibrate SK's optics; later stages (reconstruct) are
-appended to ``demo_steps``.
+expected-mode predictions, calibrate SK's optics, and reconstruct those tracks with the
+calibrated optics.
 """
 
 from __future__ import annotations
@@ -137,8 +137,9 @@ DEMO_TRACKS = (
 
 
 def track_events_step(name: str) -> Step:
-    """Simulate one event of each ``DEMO_TRACKS`` track (generator + photon transport),
-    write them to ``<out_dir>/track_events.h5`` and draw each against its expected-mode
+    """Simulate one event of each ``DEMO_TRACKS`` track (generator + photon transport)
+    with the optics ``CALIBRATION_TRUTH`` (which the calibration step recovers), write
+    them to ``<out_dir>/track_events.h5`` and draw each against its expected-mode
     prediction (``track_event<N>.png``)."""
 
     def run(context: DemoContext) -> StepResult:
@@ -155,17 +156,18 @@ def track_events_step(name: str) -> Step:
         from .viz.prediction_display import plot_prediction
 
         setup = load_setup(name)
+        params = setup.params.replace(**CALIBRATION_TRUTH)  # the optics calibrated below
         tracks = [Track(particle, start, direction, energy)
                   for particle, start, direction, energy in DEMO_TRACKS]
-        events = list(sample_events(setup.detector, setup.params, tracks, 7, len(tracks)))
+        events = list(sample_events(setup.detector, params, tracks, 7, len(tracks)))
         path = context.out_dir / "track_events.h5"
-        write_events(path, events, setup.detector, setup.params, mode="recreate")
-        spe_mean = float(single_pe_moments(setup.params.spe_width)[0])
+        write_events(path, events, setup.detector, params, mode="recreate")
+        spe_mean = float(single_pe_moments(params.spe_width)[0])
         config = TransportConfig(n_rays=1024)
-        dark = float(dark_expectation(setup.params, config.window)) * setup.detector.n_sensors
+        dark = float(dark_expectation(params, config.window)) * setup.detector.n_sensors
         pictures, totals = [], []
         for index, (track, event) in enumerate(zip(tracks, events, strict=True)):
-            prediction = expected(setup.detector, setup.params, track, config=config)
+            prediction = expected(setup.detector, params, track, config=config)
             picture = context.out_dir / f"track_event{index}.png"
             plot_prediction(setup.detector, event, prediction, picture, spe_mean=spe_mean)
             pictures.append(picture)
@@ -270,9 +272,71 @@ def optics_calibration_step(name: str) -> Step:
     return Step(f"optics calibration in {name}", run)
 
 
+#: Settings of the demo's reconstruction: one fit per event from the likeliest start
+#: (minutes per event on a laptop CPU; docs/reconstruction.md).
+DEMO_RECO_FITS = 1
+
+
+def reconstruction_step(name: str) -> Step:
+    """Reconstruct the events of ``<out_dir>/track_events.h5`` with the optics of
+    ``<out_dir>/calibration.json`` (the calibration step's; the preset's defaults where
+    it is missing), each under the hypothesis of its simulated particle (``photonflow
+    reconstruct --particle auto`` fits both), write ``reco.h5``, print the resolution
+    table and draw the error and pull pictures (``reco_errors.png``,
+    ``reco_pulls.png``)."""
+
+    def run(context: DemoContext) -> StepResult:
+        from .calibration import load_params
+        from .io import read_events
+        from .io.reco_file import RecoWriter, read_reco, reco_row
+        from .reconstruction.batch import reconstruct_or_fail
+        from .reconstruction.evaluation import format_summary, summarize
+        from .reconstruction.fit import RecoSettings
+        from .transport.optics import TransportConfig
+        from .viz.reco_plots import plot_reconstruction
+
+        calibration = context.out_dir / "calibration.json"
+        path = context.out_dir / "reco.h5"
+        settings = RecoSettings(fits=DEMO_RECO_FITS)
+        config = TransportConfig(n_rays=1024)
+        with read_events(context.out_dir / "track_events.h5") as events:
+            params = load_params(calibration) if calibration.exists() else events.params
+            run_settings = {"events": "track_events.h5", "particle": "simulated",
+                            "method": "gradient", "fits": DEMO_RECO_FITS,
+                            "params": calibration.name if calibration.exists() else
+                            "event file"}
+            with RecoWriter(path, events.detector, run_settings, mode="recreate") as writer:
+                for index in range(len(events)):
+                    event = events[index]
+                    context.console.print(f"  reconstructing event {index}"
+                                          f" ({event.truth.particle}) ...", highlight=False)
+                    result = reconstruct_or_fail(events.detector, params, event,
+                                                 event.truth.particle, "gradient", config,
+                                                 settings)
+                    writer.write(reco_row(index, result, event.truth))
+        table = read_reco(path)
+        summary = summarize(table)
+        context.console.print(format_summary(summary), highlight=False)
+        pictures = []
+        for picture in plot_reconstruction(table, context.out_dir / "reco_plots"):
+            target = context.out_dir / f"reco_{picture.name}"
+            picture.replace(target)
+            pictures.append(target)
+        (context.out_dir / "reco_plots").rmdir()
+        errors = ", ".join(
+            f"{p} {entry['vertex_68_cm']:.0f} cm / {entry['direction_68_deg']:.1f} deg /"
+            f" {100 * entry['energy_68_frac']:.1f} %" for p, entry in
+            summary["particles"].items() if entry["vertex_68_cm"] is not None)
+        return StepResult(f"{len(table)} events with the calibrated optics (fit - truth:"
+                          f" {errors}); results in {path}", (path, *pictures))
+
+    return Step(f"reconstruction in {name}", run)
+
+
 def demo_steps(with_fit: bool = True) -> list[Step]:
     """The steps of the main job, in order (``with_fit=False`` leaves out the optics
-    calibration fit, the one step that takes minutes)."""
+    calibration fit and the reconstruction with its result, the steps that take
+    minutes)."""
     steps = [
         presets_step(),
         geometry_step(DEFAULT_DETECTOR),
@@ -280,7 +344,8 @@ def demo_steps(with_fit: bool = True) -> list[Step]:
         calibration_run_step(DEFAULT_DETECTOR),
         track_events_step(DEFAULT_DETECTOR),
     ]
-    return steps + [optics_calibration_step(DEFAULT_DETECTOR)] if with_fit else steps
+    fits = [optics_calibration_step(DEFAULT_DETECTOR), reconstruction_step(DEFAULT_DETECTOR)]
+    return steps + fits if with_fit else steps
 
 
 def run_demo(

@@ -16,7 +16,8 @@ def demo(
         "--out-dir", help="Folder for the demo's pictures and files.",
     )] = Path("demo_output"),
     skip_fit: Annotated[bool, typer.Option(
-        "--skip-fit", help="Leave out the optics calibration fit (minutes on a laptop CPU).",
+        "--skip-fit", help="Leave out the optics calibration fit and the reconstruction"
+                           " (minutes on a laptop CPU).",
     )] = False,
 ) -> None:
     """Run the main job on the embedded default detectors and write its outputs."""
