@@ -151,7 +151,10 @@ def test_file_level_problems_are_one_line_and_exit_2(folder):
         (["--out", "x.h5", "--resume"], "no interrupted job"),
         (["--out", "reference.h5"], "file exists"),
         (["--out", "x.h5", "--particle", "tau"], "particle"),
+        (["--out", "plots_folder"], "is a folder"),
+        (["--out", "events.h5", "--mode", "recreate"], "the event file itself"),
     ]
+    (folder / "plots_folder").mkdir(exist_ok=True)
     for extra, words in cases:
         done = run(folder, "reconstruct", "events.h5", *FAST, *extra, check=False)
         assert done.returncode == 2 and words in done.stderr, (extra, done.stderr)

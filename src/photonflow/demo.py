@@ -286,6 +286,8 @@ def reconstruction_step(name: str) -> Step:
     ``reco_pulls.png``)."""
 
     def run(context: DemoContext) -> StepResult:
+        import shutil
+
         from .calibration import load_params
         from .io import read_events
         from .io.reco_file import RecoWriter, read_reco, reco_row
@@ -318,11 +320,12 @@ def reconstruction_step(name: str) -> Step:
         summary = summarize(table)
         context.console.print(format_summary(summary), highlight=False)
         pictures = []
-        for picture in plot_reconstruction(table, context.out_dir / "reco_plots"):
+        folder = context.out_dir / "reco_plots"
+        for picture in plot_reconstruction(table, folder):
             target = context.out_dir / f"reco_{picture.name}"
             picture.replace(target)
             pictures.append(target)
-        (context.out_dir / "reco_plots").rmdir()
+        shutil.rmtree(folder, ignore_errors=True)
         errors = ", ".join(
             f"{p} {entry['vertex_68_cm']:.0f} cm / {entry['direction_68_deg']:.1f} deg /"
             f" {100 * entry['energy_68_frac']:.1f} %" for p, entry in

@@ -65,6 +65,7 @@ def reconstruct(
     and the job goes on. An interrupted job (Ctrl-C, kill) keeps its results in
     .OUT.partial beside OUT; the same command with --resume finishes it. --workers and
     --scheduler give the same results as a serial job."""
+    from ..cli_errors import check_output_file
     from ..errors import ConfigError
     from ..io import read_events
     from ..io.reco_file import RecoWriter
@@ -80,6 +81,9 @@ def reconstruct(
         raise ConfigError(f"--scheduler = {scheduler!r}: not with --workers (choose one)")
     if workers is not None:
         check_count("--workers", workers, 1, max_workers())
+    check_output_file(out, "--out")
+    if out.expanduser().resolve() == events.expanduser().resolve():
+        raise ConfigError(f"--out = {str(out)!r}: is the event file itself; name another file")
     with read_events(events) as event_file:
         detector = event_file.detector
         if params is None:
@@ -145,8 +149,13 @@ def _run_job(writer, event_file, detector, params, particle, method, bounces, se
             if hasattr(results, "close"):
                 results.close()  # stops a local Dask cluster now, not at exit
             kept = writer.partial
-            advice = (f"{kept.name} keeps them: run the same command with --resume to"
-                      " finish") if kept.exists() and writer.n_events else "nothing kept"
+            if kept.exists():
+                advice = (f"{kept.name} keeps them: run the same command with --resume to"
+                          " finish")
+            elif writer.path.exists() and writer.n_events == n_events:
+                advice = f"{writer.path.name} was already complete"
+            else:
+                advice = "nothing kept"
             sys.stderr.write(f"interrupted after {writer.n_events} of {n_events} events;"
                              f" {advice}\n")
             interrupts.reported = True

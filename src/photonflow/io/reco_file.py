@@ -141,6 +141,8 @@ class RecoWriter:
         target = self.path
         if not target.parent.is_dir():
             raise EventFileError(f"{target}: directory {target.parent} does not exist")
+        if target.is_dir():
+            raise EventFileError(f"{target}: is a directory; name a file")
         if self.mode == "create" and target.exists():
             raise EventFileError(f"{target}: file exists; use --mode recreate to overwrite it")
         if self.resume:
@@ -157,9 +159,16 @@ class RecoWriter:
                 self.partial.unlink()
             try:
                 self._h5 = h5py.File(self.partial, "w")
-            except OSError as error:
-                raise EventFileError(f"{target}: cannot write ({error})") from None
-            self._create()
+                self._create()
+            except BaseException as error:  # an interrupt too: leave nothing behind
+                if self._h5 is not None:
+                    with contextlib.suppress(Exception):
+                        self._h5.close()
+                    self._h5 = None
+                self.partial.unlink(missing_ok=True)
+                if isinstance(error, OSError):
+                    raise EventFileError(f"{target}: cannot write ({error})") from None
+                raise
         return self
 
     def _create(self) -> None:
@@ -227,8 +236,11 @@ class RecoWriter:
     @interrupts_deferred()
     def __exit__(self, exc_type, exc, traceback) -> None:
         h5, self._h5 = self._h5, None
-        with contextlib.suppress(Exception):
-            h5.close()
+        if exc_type is None:
+            h5.close()  # an error here must not rename a file that was not closed
+        else:
+            with contextlib.suppress(Exception):
+                h5.close()
         _fsync(self.partial)
         if exc_type is not None:
             if self._n == 0:  # nothing to resume: leave nothing behind

@@ -132,7 +132,8 @@ def energy_bins(energies) -> list[tuple[float, float]]:
         return []
     if values.size <= DISTINCT_ENERGIES:
         return [(float(v), float(v)) for v in values]
-    edges = np.quantile(energies[np.isfinite(energies)], np.linspace(0, 1, ENERGY_BINS + 1))
+    edges = np.unique(np.quantile(energies[np.isfinite(energies)],
+                                  np.linspace(0, 1, ENERGY_BINS + 1)))
     return [(float(a), float(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 

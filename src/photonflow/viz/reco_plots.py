@@ -63,7 +63,8 @@ def _errors_figure(table, errors, particles, path) -> Path:
                     ax.axvline(np.quantile(values, 0.68), ls=":", lw=1)
         ax.set_xlabel(label)
         ax.set_ylabel("events")
-    axes[0].legend(title="dotted: 68 %", fontsize=8)
+    if axes[0].get_legend_handles_labels()[0]:
+        axes[0].legend(title="dotted: 68 %", fontsize=8)
     figure.suptitle(f"reconstruction errors ({table.run.get('method', '?')})")
     return save_figure(figure, path)
 
@@ -82,7 +83,8 @@ def _pulls_figure(table, errors, particles, path) -> Path:
         ax.plot(grid, np.exp(-0.5 * grid**2) / np.sqrt(2 * np.pi), "k--", lw=1)
         ax.set_xlabel(f"pull of {name}")
     axes[-1].set_axis_off()
-    axes[0].legend(title="dashed: N(0, 1)", fontsize=8)
+    if axes[0].get_legend_handles_labels()[0]:
+        axes[0].legend(title="dashed: N(0, 1)", fontsize=8)
     figure.suptitle("pulls: error / reported uncertainty")
     return save_figure(figure, path)
 
@@ -98,7 +100,8 @@ def _resolution_figure(summary, path) -> Path:
                 ax.plot(energy, [scale * b[key] for b in bins], "o-", label=particle)
         ax.set_xlabel("true energy (MeV)")
         ax.set_ylabel(label)
-    axes[0].legend(fontsize=8)
+    if axes[0].get_legend_handles_labels()[0]:
+        axes[0].legend(fontsize=8)
     return save_figure(figure, path)
 
 
@@ -107,7 +110,8 @@ def _ratio_figure(table, particles, path) -> Path:
     ax = figure.subplots()
     ratio = table.reco["log_likelihood_ratio"]
     finite = ratio[np.isfinite(ratio)]
-    bins = np.linspace(finite.min(), finite.max(), 30) if finite.size > 1 else 10
+    spread = finite.size > 1 and finite.max() > finite.min()
+    bins = np.linspace(finite.min(), finite.max(), 30) if spread else 10
     for particle in particles:
         values = ratio[_rows(table, particle)]
         ax.hist(values[np.isfinite(values)], bins=bins, histtype="step",
