@@ -135,7 +135,7 @@ def test_a_noise_free_event_is_recovered_exactly(toy):
     skewed; 0.6 cm, 0.2 degree, 1.3 % measured)."""
     detector, params = toy
     event = noise_free_event(detector, params, TRUTH)
-    tight = RecoSettings(fits=1, scan_directions=2, tolerance=1e-5)
+    tight = RecoSettings(fits=1, scan_directions=2, tolerance=1e-4)
     minimum = reconstruct(detector, params, event, "mu-", config=CONFIG, settings=tight,
                           start=TRUTH)
     seeded = reconstruct(detector, params, event, "mu-", config=CONFIG, settings=tight)
