@@ -278,10 +278,12 @@ def read_reco(path) -> RecoTable:
         raise EventFileError(f"{path}: no such file")
     try:
         with h5py.File(path, "r") as h5:
-            if _text_attr(h5, "format") != RECO_FORMAT:
+            found = h5.attrs.get("format", "")
+            found = found.decode() if isinstance(found, bytes) else str(found)
+            if found != RECO_FORMAT:
                 raise EventFileError(
                     f"{path}: not a photonflow reconstruction file (format attribute"
-                    f" {_text_attr(h5, 'format')!r}, expected {RECO_FORMAT!r})")
+                    f" {found or 'missing'!r}, expected {RECO_FORMAT!r})")
             if int(h5.attrs["format_version"]) > RECO_FORMAT_VERSION:
                 raise EventFileError(f"{path}: format_version is newer than this photonflow"
                                      " reads; upgrade photonflow")
