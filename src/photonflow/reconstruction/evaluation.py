@@ -191,6 +191,6 @@ def format_summary(summary: dict) -> str:
                 cells.append("-" if value is None else pattern.format(scale * value))
             rows.append(cells)
     widths = [max(len(r[k]) for r in [headings, *rows]) for k in range(len(headings))]
-    lines = ["  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True))
+    lines = [" ".join(c.rjust(w) for c, w in zip(r, widths, strict=True))
              for r in [headings, *rows]]
     return "\n".join(lines)
