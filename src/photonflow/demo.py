@@ -286,8 +286,6 @@ def reconstruction_step(name: str) -> Step:
     ``reco_pulls.png``)."""
 
     def run(context: DemoContext) -> StepResult:
-        import shutil
-
         from .calibration import load_params
         from .io import read_events
         from .io.reco_file import RecoWriter, read_reco, reco_row
@@ -319,13 +317,7 @@ def reconstruction_step(name: str) -> Step:
         table = read_reco(path)
         summary = summarize(table)
         context.console.print(format_summary(summary), highlight=False)
-        pictures = []
-        folder = context.out_dir / "reco_plots"
-        for picture in plot_reconstruction(table, folder):
-            target = context.out_dir / f"reco_{picture.name}"
-            picture.replace(target)
-            pictures.append(target)
-        shutil.rmtree(folder, ignore_errors=True)
+        pictures = plot_reconstruction(table, context.out_dir, summary, prefix="reco_")
         errors = ", ".join(
             f"{p} {entry['vertex_68_cm']:.0f} cm / {entry['direction_68_deg']:.1f} deg /"
             f" {100 * entry['energy_68_frac']:.1f} %" for p, entry in

@@ -190,7 +190,7 @@ def evaluate(
     if plots is not None:
         from ..viz.reco_plots import plot_reconstruction
 
-        written += plot_reconstruction(table, plots)
+        written += plot_reconstruction(table, plots, summary)
     console().print(format_summary(summary), highlight=False, soft_wrap=True)
     console().print("wrote " + ", ".join(str(p) for p in written), highlight=False,
                     soft_wrap=True)

@@ -33,9 +33,9 @@ def reconstruct_or_fail(detector, params, event, particle: str, method: str,
     try:
         return reconstruct(detector, params, event, particle, method, config=config,
                            settings=settings)
+    except ConfigError:
+        raise
     except Exception as error:  # noqa: BLE001 -- one event's fit must not stop a batch
-        if isinstance(error, ConfigError):
-            raise
         text = " ".join(str(error).split()) or traceback.format_exception_only(error)[-1]
         reason = f"error: {type(error).__name__}: {text}"[:400]
         return RecoResult.failed(reason, particle, method, clock.perf_counter() - began)

@@ -39,7 +39,8 @@ def _family(particle: str) -> str:
 def event_errors(table) -> dict[str, np.ndarray]:
     """Per-event errors (fit - truth) of a ``RecoTable``: ``vertex_cm``,
     ``longitudinal_cm``, ``transverse_cm``, ``direction_deg``, ``energy_frac``,
-    ``time_ns``, and the pulls ``pull_<name>`` for each of ``LOCAL``; NaN for failed
+    ``time_ns``, the pulls ``pull_<name>`` for each of ``LOCAL`` and ``misidentified``
+    (1 or 0; NaN unless the true particle is a muon or an electron); NaN for failed
     fits and events without truth."""
     reco, truth = table.reco, table.truth
     delta = reco["position"] - truth["position"]
@@ -62,7 +63,11 @@ def event_errors(table) -> dict[str, np.ndarray]:
         pulls = local / sigma
     for k, name in enumerate(LOCAL):
         errors[f"pull_{name}"] = pulls[:, k]
-    bad = np.array([bool(f) for f in reco["failure"]], bool)
+    true_family = [_family(p) for p in truth["particle"]]
+    errors["misidentified"] = np.array(
+        [float(t != _family(f)) if t in ("mu", "e") else math.nan
+         for t, f in zip(true_family, reco["particle"], strict=True)])
+    bad = failures(table)
     return {name: np.where(bad, np.nan, value) for name, value in errors.items()}
 
 
@@ -93,20 +98,19 @@ def _pull_width(values) -> float | None:
     return float(0.5 * (high - low))
 
 
-def _metrics(table, errors, rows, auto: bool) -> dict:
-    """The summary of the events ``rows`` (boolean mask)."""
-    failed = np.array([bool(f) for f in table.reco["failure"]], bool)
+def failures(table) -> np.ndarray:
+    """(n,) bool: the events whose fit failed."""
+    return np.array([bool(f) for f in table.reco["failure"]], bool)
+
+
+def _metrics(table, errors, failed, rows, auto: bool) -> dict:
+    """The summary of the events ``rows`` (boolean mask); ``failed``: ``failures``."""
     fitted = rows & ~failed
     pick = {name: value[fitted] for name, value in errors.items()}
     median = np.median(pick["energy_frac"][np.isfinite(pick["energy_frac"])]) \
         if np.any(np.isfinite(pick["energy_frac"])) else math.nan
-    misid = None
-    known = np.array([_family(p) in ("mu", "e") for p in table.truth["particle"]], bool)
-    fitted_known = fitted & known
-    if auto and fitted_known.any():
-        true = [_family(p) for p in table.truth["particle"][fitted_known]]
-        found = [_family(p) for p in table.reco["particle"][fitted_known]]
-        misid = float(np.mean([a != b for a, b in zip(true, found, strict=True)]))
+    identified = pick["misidentified"][np.isfinite(pick["misidentified"])]
+    misid = float(np.mean(identified)) if auto and identified.size else None
     seconds = table.reco["seconds"][rows]
     return {
         "n_events": int(rows.sum()), "n_failed": int((rows & failed).sum()),
@@ -143,12 +147,13 @@ def summarize(table) -> dict:
     [{"energy_low_mev", "energy_high_mev", metrics...}]}}}``; undefined numbers are
     None."""
     errors = event_errors(table)
+    failed = failures(table)
     auto = table.run.get("particle") == "auto"
     true_particles = table.truth["particle"]
     summary = {"events": len(table), "settings": table.run, "particles": {}}
     for particle in sorted(set(true_particles)):
         rows = true_particles == particle
-        entry = _metrics(table, errors, rows, auto)
+        entry = _metrics(table, errors, failed, rows, auto)
         energies = table.truth["energy"]
         entry["energy_bins"] = []
         bins = energy_bins(energies[rows])
@@ -158,7 +163,8 @@ def summarize(table) -> dict:
                                                  else (energies < high))
             if inside.sum() >= MIN_BIN_EVENTS:
                 entry["energy_bins"].append({"energy_low_mev": low, "energy_high_mev": high,
-                                             **_metrics(table, errors, inside, auto)})
+                                             **_metrics(table, errors, failed, inside,
+                                                         auto)})
         summary["particles"][particle or "unknown"] = entry
     return summary
 

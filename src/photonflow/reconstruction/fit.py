@@ -41,17 +41,19 @@ from ..constants import SPEED_OF_LIGHT
 from ..emission import emission_model
 from ..errors import ConfigError
 from ..generator.track import Track
-from ..likelihood import dense_sensor_nll, hit_arrays
+from ..likelihood import dark_expectation, dense_sensor_nll, hit_arrays
 from ..numerics import default_float_dtype
 from ..transport.expected import expected_function
-from ..transport.optics import TransportConfig
+from ..transport.optics import TransportConfig, orthonormal_basis
 from ..transport.tracks import detector_medium
 from .coordinates import (
     fit_frame,
     free_from_track,
+    free_from_vertex,
     local_from_track,
     track_from_free,
     track_from_local,
+    vertex_from_free,
 )
 from .result import RecoResult
 from .seeding import energy_from_charge, point_source_seed
@@ -68,6 +70,8 @@ START_SHARES = (0.0, 0.35, 0.7)
 #: the sphere (the seeded direction can be far off in a small detector, where the
 #: point-source vertex falls near the wall).
 SCAN_SHARE = 0.35
+#: Energy (MeV) of the prediction that seeds the energy from the total charge.
+REFERENCE_ENERGY = {"mu-": 1000.0, "e-": 500.0}
 
 
 def sphere_directions(count: int) -> np.ndarray:
@@ -77,8 +81,6 @@ def sphere_directions(count: int) -> np.ndarray:
     azimuth = np.pi * (1.0 + 5.0**0.5) * k
     sine = np.sqrt(1.0 - cos * cos)
     return np.stack([sine * np.cos(azimuth), sine * np.sin(azimuth), cos], axis=-1)
-#: Energy (MeV) of the prediction that seeds the energy from the total charge.
-REFERENCE_ENERGY = {"mu-": 1000.0, "e-": 500.0}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -348,15 +350,11 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
 
 def frame_inside(frame, vertex) -> np.ndarray:
     """``vertex`` (m) moved onto the fit's inner volume if it lies outside it."""
-    from .coordinates import free_from_vertex, vertex_from_free
-
     return np.asarray(vertex_from_free(frame, free_from_vertex(frame, vertex)), np.float64)
 
 
 def _dark_total(detector, data, functions) -> float:
     """Expected dark-noise charge of the whole detector in the readout window, p.e."""
-    from ..likelihood import dark_expectation
-
     return float(detector.n_sensors * dark_expectation(data.params, functions.window))
 
 
@@ -514,23 +512,15 @@ def _local_covariance(frame, free, fitted: Track, covariance, dtype) -> np.ndarr
     """A covariance of the free coordinates at ``free`` as one in ``LOCAL`` coordinates
     about the ``fitted`` track (the Jacobian of the coordinate change)."""
     axis = jnp.asarray(fitted.direction, dtype)
-    local_frame = fit_frame_like(frame, axis)
+    first, second = orthonormal_basis(axis)  # the angles' basis of ``_covariance``
 
     def local(x):
         track = track_from_free(frame, x)
-        along = jnp.sum(track.direction * local_frame.axis)
+        along = jnp.sum(track.direction * axis)
         return jnp.concatenate([track.position, jnp.stack([
-            track.time, jnp.sum(track.direction * local_frame.first) / along,
-            jnp.sum(track.direction * local_frame.second) / along, jnp.log(track.energy)])])
+            track.time, jnp.sum(track.direction * first) / along,
+            jnp.sum(track.direction * second) / along, jnp.log(track.energy)])])
 
     jacobian = np.asarray(jax.jacfwd(local)(jnp.asarray(free, dtype)), np.float64)
     return jacobian @ covariance @ jacobian.T
 
-
-def fit_frame_like(frame, axis):
-    """``frame`` turned to the direction ``axis`` (3,)."""
-    from ..transport.optics import orthonormal_basis
-
-    axis = axis / jnp.linalg.norm(axis)
-    first, second = orthonormal_basis(axis)
-    return dataclasses.replace(frame, axis=axis, first=first, second=second)

@@ -28,21 +28,25 @@ RESOLUTION_PANELS = (("vertex_68_cm", "vertex 68 % (cm)", 1.0),
                      ("energy_bias_frac", "energy bias (%)", 100.0))
 
 
-def plot_reconstruction(table, folder) -> list[Path]:
-    """Draw the pictures of a ``RecoTable`` into ``folder`` (created): errors.png,
-    pulls.png, and where they apply resolution_vs_energy.png (several energies) and
-    likelihood_ratio.png (a ``--particle auto`` job). Returns the paths written."""
+def plot_reconstruction(table, folder, summary: dict | None = None,
+                        prefix: str = "") -> list[Path]:
+    """Draw the pictures of a ``RecoTable`` into ``folder`` (created), each name after
+    ``prefix``: errors.png, pulls.png, and where they apply resolution_vs_energy.png
+    (several energies) and likelihood_ratio.png (a ``--particle auto`` job).
+    ``summary``: the table's ``summarize`` if already made. Returns the paths written."""
     folder = Path(folder)
     errors = event_errors(table)
     particles = sorted(set(table.truth["particle"]))
-    written = [_errors_figure(table, errors, particles, folder / "errors.png"),
-               _pulls_figure(table, errors, particles, folder / "pulls.png")]
-    summary = summarize(table)
+    written = [_errors_figure(table, errors, particles, folder / f"{prefix}errors.png"),
+               _pulls_figure(table, errors, particles, folder / f"{prefix}pulls.png")]
+    summary = summarize(table) if summary is None else summary
     if any(entry["energy_bins"] for entry in summary["particles"].values()):
-        written.append(_resolution_figure(summary, folder / "resolution_vs_energy.png"))
+        written.append(_resolution_figure(
+            summary, folder / f"{prefix}resolution_vs_energy.png"))
     ratio = table.reco["log_likelihood_ratio"]
     if np.any(np.isfinite(ratio)):
-        written.append(_ratio_figure(table, particles, folder / "likelihood_ratio.png"))
+        written.append(_ratio_figure(table, particles,
+                                     folder / f"{prefix}likelihood_ratio.png"))
     return written
 
 
