@@ -41,6 +41,7 @@ from ..constants import SPEED_OF_LIGHT
 from ..emission import emission_model
 from ..errors import ConfigError
 from ..generator.track import Track
+from ..geometry.sensor_arrays import sensors_for
 from ..likelihood import dark_expectation, dense_sensor_nll, hit_arrays
 from ..numerics import default_float_dtype
 from ..transport.expected import expected_function
@@ -160,7 +161,7 @@ def reconstruct(detector, params, event, particle: str = "mu-", method: str = "g
     with jax.enable_x64(True) if method == "minuit" else contextlib.nullcontext():
         dtype = jnp.dtype(settings.dtype or precision or default_float_dtype())
         functions = _functions(detector, dtype, config)
-        data = _event_data(detector, params, event, dtype, config)
+        data = _event_data(detector, params, event, dtype, functions)
         seed = _seed(detector, params, event, dtype) if start is None else start
         hypotheses = ("mu-", "e-") if particle == "auto" else (particle,)
         results = {}
@@ -206,11 +207,16 @@ class _Functions:
     total_charge: object
     solver: object
     window: tuple[float, float]
+    emission: object
+    sensors: object
 
 
 @dataclasses.dataclass(frozen=True)
 class _EventData:
-    """The event as dense per-sensor arrays and the response it is read with."""
+    """The event as dense per-sensor arrays and the response it is read with, and the
+    large arrays of the prediction (the emission model of the hypothesis fitted, the
+    detector's ``Sensors``): arguments of the jitted functions, not constants of their
+    programs (``expected_function``)."""
 
     hit: jax.Array
     charge: jax.Array
@@ -218,10 +224,13 @@ class _EventData:
     params: object
     dark_rate: jax.Array
     spe_width: jax.Array
+    sensors: object
+    emission: object = None
 
 
 jax.tree_util.register_dataclass(
-    _EventData, data_fields=["hit", "charge", "time", "params", "dark_rate", "spe_width"],
+    _EventData, data_fields=["hit", "charge", "time", "params", "dark_rate", "spe_width",
+                             "sensors", "emission"],
     meta_fields=[])
 
 #: Jitted functions per detector object, keyed by (dtype, config).
@@ -243,7 +252,8 @@ def _build_functions(detector, dtype, config: TransportConfig) -> _Functions:
     threshold = config.charge_threshold if config.charge_threshold > 0 else None
 
     def track_nll(track, reference, data, time_weight=1.0):
-        prediction = predict(data.params, track, None, reference)
+        prediction = predict(data.params, track, None, reference, emission=data.emission,
+                             arrays=data.sensors)
         weight = jnp.asarray(time_weight, data.charge.dtype)
         return jnp.sum(dense_sensor_nll(prediction, data.hit, data.charge, data.time,
                                         data.dark_rate, data.spe_width, window,
@@ -272,18 +282,24 @@ def _build_functions(detector, dtype, config: TransportConfig) -> _Functions:
 
     @jax.jit
     def total_charge(track, data):
-        return jnp.sum(predict(data.params, track).charge)
+        return jnp.sum(predict(data.params, track, emission=data.emission,
+                               arrays=data.sensors).charge)
 
+    medium = detector_medium(detector)
     return _Functions(value=jax.jit(free_nll), step=step,
                       hessian=hessian, total_charge=total_charge, solver=solver,
-                      window=window)
+                      window=window,
+                      emission=lambda particle: emission_model(particle, medium, dtype,
+                                                               config.emission_model),
+                      sensors=sensors_for(detector, dtype))
 
 
-def _event_data(detector, params, event, dtype, config) -> _EventData:
+def _event_data(detector, params, event, dtype, functions) -> _EventData:
     cast = lambda x: jnp.asarray(x, dtype)  # noqa: E731
     hit, charge, time = hit_arrays(event, detector.n_sensors, dtype)
     return _EventData(hit=hit, charge=charge, time=time, params=jax.tree.map(cast, params),
-                      dark_rate=cast(params.dark_rate), spe_width=cast(params.spe_width))
+                      dark_rate=cast(params.dark_rate), spe_width=cast(params.spe_width),
+                      sensors=functions.sensors)
 
 
 def _seed(detector, params, event, dtype):
@@ -305,6 +321,7 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
     ``Track``: the only start)."""
     began = clock.perf_counter()
     model = emission_model(particle, detector_medium(detector))
+    data = dataclasses.replace(data, emission=functions.emission(particle))
     minimise = _minimise_gradient if method == "gradient" else _minimise_minuit
     if isinstance(seed, Track):
         fit = minimise(functions, detector, model, data, seed, settings)

@@ -177,10 +177,19 @@ def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
         return (cherenkov_spectral_factor(sensor, medium),
                 scintillation_spectral_factor(sensor, medium))
 
-    def predict(params: Params, source, key=None, reference=None) -> Prediction:
-        """Expected p.e. and time mixture per sensor (see ``expected``); no checks."""
+    def predict(params: Params, source, key=None, reference=None, *, emission=None,
+                arrays: Sensors | None = None) -> Prediction:
+        """Expected p.e. and time mixture per sensor (see ``expected``); no checks.
+        ``emission`` (a track's emission model, default the shipped one of its
+        particle, ``emission.emission_model``) and ``arrays`` (the detector's
+        ``Sensors``, default ``sensors_for(detector, dtype)``) may be passed in:
+        a function that jits a predictor call and takes them as its arguments keeps
+        them out of its compiled program, whose constants they would otherwise be
+        (an SK spline table is 21 MB, the SK sensors 19 MB)."""
+        sensors_used = sensors if arrays is None else arrays
         if isinstance(source, Track):
-            model = emission_model(source.particle, medium, dtype, config.emission_model)
+            model = (emission_model(source.particle, medium, dtype, config.emission_model)
+                     if emission is None else emission)
             scintillator = scintillation_emission(source.particle, medium, dtype)
             cherenkov_factor, scintillation_factor = spectral()
             scintillation = None if scintillator is None else (scintillator,
@@ -188,14 +197,14 @@ def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
             if reference is not None:
                 reference = jax.tree.map(cast, reference)
             return track_expected_jit(
-                sensors, jax.tree.map(cast, params), jax.tree.map(cast, source), model,
+                sensors_used, jax.tree.map(cast, params), jax.tree.map(cast, source), model,
                 cast(cherenkov_factor), key, reference, scintillation,
                 shape=detector.shape, config=config,
             )
         if reference is not None:
             raise ConfigError("reference: only a Track source takes a reference track")
         return expected_jit(
-            sensors, jax.tree.map(cast, params), jax.tree.map(cast, source), key,
+            sensors_used, jax.tree.map(cast, params), jax.tree.map(cast, source), key,
             shape=detector.shape, config=config,
         )
 
