@@ -4,6 +4,7 @@ baseline on the same likelihood, and events that cannot be fitted."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import jax
@@ -176,3 +177,26 @@ def test_unknown_options_are_refused(toy, sampled_event):
         reconstruct(detector, params, sampled_event, "proton")
     with pytest.raises(ConfigError, match="method = 'simplex'"):
         reconstruct(detector, params, sampled_event, "mu-", "simplex")
+
+
+def test_the_fit_programs_take_the_large_arrays_as_arguments(toy, sampled_event):
+    """The emission model (a 21 MB spline table) and the detector's sensors reach the
+    fit's jitted likelihood as arguments: its program holds neither as a constant (with
+    them closed over, its text is > 40 MB), and it gives the value of the public
+    predictor."""
+    from photonflow.reconstruction import fit
+
+    detector, params = toy
+    functions = fit._functions(detector, jnp.float32, CONFIG)
+    data = fit._event_data(detector, params, sampled_event, jnp.float32, functions)
+    data = dataclasses.replace(data, emission=functions.emission("mu-"))
+    frame = fit_frame(detector.shape, TRUTH.direction, (50.0, 5000.0), "mu-", 0.0,
+                      jnp.float32)
+    track = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), TRUTH)
+    free = free_from_track(frame, track)
+    program = functions.value.lower(free, frame, track, data).as_text()
+    assert len(program) < 2_000_000
+    value = float(functions.value(free, frame, track, data))
+    expected = float(pf.nll(pf.expected(detector, params, TRUTH, config=CONFIG),
+                            sampled_event, params, window=CONFIG.window))
+    assert value == pytest.approx(expected, rel=1e-4)
