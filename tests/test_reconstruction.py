@@ -200,3 +200,22 @@ def test_the_fit_programs_take_the_large_arrays_as_arguments(toy, sampled_event)
     expected = float(pf.nll(pf.expected(detector, params, TRUTH, config=CONFIG),
                             sampled_event, params, window=CONFIG.window))
     assert value == pytest.approx(expected, rel=1e-4)
+
+
+def test_a_fit_without_a_positive_definite_hessian_is_not_converged(toy, sampled_event,
+                                                                    monkeypatch):
+    """A fit that stops where the Hessian is not positive definite (a saddle: one SK
+    muon fitted to 2.8 GeV did) is reported, but not as converged."""
+    from photonflow.reconstruction import fit
+
+    detector, params = toy
+    short = RecoSettings(fits=1, scan_directions=0)
+    good = reconstruct(detector, params, sampled_event, "mu-", config=CONFIG, settings=short,
+                       start=TRUTH)
+    assert good.converged and np.all(np.isfinite(good.covariance))
+    monkeypatch.setattr(fit, "_covariance",
+                        lambda *args: np.full((7, 7), np.nan))
+    saddle = reconstruct(detector, params, sampled_event, "mu-", config=CONFIG,
+                         settings=short, start=TRUTH)
+    assert saddle.failure is None and not saddle.converged
+    assert saddle.nll == pytest.approx(good.nll)

@@ -445,6 +445,9 @@ def _minimise_gradient(functions, detector, model, data, start, settings) -> Rec
     value = float(functions.value(free_from_track(frame, _cast_track(reference, dtype)), frame,
                                   _cast_track(reference, dtype), data))
     covariance = _covariance(functions, detector, model, data, reference)
+    # a point whose Hessian is not positive definite is not a minimum (a saddle, or a
+    # ridge the tolerance stopped on): never reported as converged
+    converged = converged and bool(np.all(np.isfinite(covariance)))
     return RecoResult(position=np.asarray(reference.position), time=float(reference.time),
                       direction=np.asarray(reference.direction),
                       energy=float(reference.energy), covariance=covariance, nll=value,
@@ -510,6 +513,7 @@ def _minimise_minuit(functions, detector, model, data, start, settings) -> RecoR
     evaluations += minuit.nfcn
     covariance = _local_covariance(frame, np.asarray(minuit.values), reference,
                                    np.asarray(minuit.covariance, np.float64), dtype)
+    converged = converged and bool(minuit.fmin.has_posdef_covar)
     return RecoResult(position=np.asarray(reference.position), time=float(reference.time),
                       direction=np.asarray(reference.direction),
                       energy=float(reference.energy), covariance=covariance,

@@ -25,7 +25,8 @@ class RecoResult:
             direction (rad), ln E; NaN when the Hessian is not positive definite.
         nll: the minimum negative log-likelihood.
         particle: the particle of the fit ("mu-" or "e-").
-        converged: the fit ended at a minimum (a small step and gradient).
+        converged: the fit ended at a minimum (a small step and gradient, and a
+            positive-definite Hessian there).
         iterations: optimiser iterations (summed over the starts fitted).
         seconds: wall time of the whole reconstruction, s.
         failure: None, or why the fit failed (one line).
