@@ -139,8 +139,10 @@ def expected_function(
     grid: SensorGrid | None = None,
 ):
     """The prepared predictor: a function ``predict(params, source, key=None,
-    reference=None) -> Prediction`` (``reference``: see ``expected``) with the
-    detector's arrays and grids built once and closed over.
+    reference=None, *, emission=None, arrays=None) -> Prediction`` (``reference``: see
+    ``expected``; ``emission``, ``arrays``: the emission model and the ``Sensors`` to use
+    instead of the ones closed over, to pass them as arguments of a jitted caller) with
+    the detector's arrays and grids built once and closed over.
 
     ``expected`` calls it (and checks concrete inputs first); use it directly in code
     that calls the prediction many times outside ``jit`` with values known to be good
