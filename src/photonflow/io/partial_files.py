@@ -49,9 +49,9 @@ def run_difference(stored: str, run: Mapping) -> str | None:
     return None
 
 
-def _text_attr(h5: h5py.File, name: str) -> str:
-    """A root string attribute ("{}" when absent), decoded from bytes if need be."""
-    value = h5.attrs.get(name, "{}")
+def _text_attr(h5: h5py.File, name: str, default: str = "{}") -> str:
+    """A root string attribute (``default`` when absent), decoded from bytes if need be."""
+    value = h5.attrs.get(name, default)
     return value.decode() if isinstance(value, bytes) else str(value)
 
 

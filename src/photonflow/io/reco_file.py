@@ -278,8 +278,7 @@ def read_reco(path) -> RecoTable:
         raise EventFileError(f"{path}: no such file")
     try:
         with h5py.File(path, "r") as h5:
-            found = h5.attrs.get("format", "")
-            found = found.decode() if isinstance(found, bytes) else str(found)
+            found = _text_attr(h5, "format", "")
             if found != RECO_FORMAT:
                 raise EventFileError(
                     f"{path}: not a photonflow reconstruction file (format attribute"
