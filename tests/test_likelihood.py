@@ -8,10 +8,13 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
+from photonflow.errors import ConfigError
 from photonflow.io.events import Event
 from photonflow.likelihood import (
     MU_BLEND,
     MU_SWITCH,
+    OVERDISPERSED_BLEND,
+    OVERDISPERSED_SWITCH,
     charge_logcdf,
     charge_logpdf,
     dark_expectation,
@@ -96,18 +99,23 @@ def integrate_charge(values, q):
 
 
 @pytest.mark.parametrize(
-    ("mu", "dark_rate", "threshold", "q_range", "dq"),
+    ("mu", "dark_rate", "threshold", "q_range", "dq", "overdispersion"),
     [
-        (0.0, 1e6, None, (-3.0, 12.0), 0.05),
-        (0.05, 0.0, None, (-3.0, 12.0), 0.05),
-        (1.0, 1e6, None, (-3.0, 15.0), 0.05),
-        (3.0, 2e6, 0.3, (0.3, 20.0), 0.05),
-        (40.0, 1e6, None, (-3.0, 90.0), 0.1),
-        (70.0, 0.0, None, (-3.0, 140.0), 0.1),
-        (150.0, 1e6, None, (40.0, 260.0), 0.25),
+        (0.0, 1e6, None, (-3.0, 12.0), 0.05, 0.0),
+        (0.05, 0.0, None, (-3.0, 12.0), 0.05, 0.0),
+        (1.0, 1e6, None, (-3.0, 15.0), 0.05, 0.0),
+        (3.0, 2e6, 0.3, (0.3, 20.0), 0.05, 0.0),
+        (40.0, 1e6, None, (-3.0, 90.0), 0.1, 0.0),
+        (70.0, 0.0, None, (-3.0, 140.0), 0.1, 0.0),
+        (150.0, 1e6, None, (40.0, 260.0), 0.25, 0.0),
+        # overdispersed: exact sum, the blend into the Gamma model, Gamma only
+        (1.0, 1e6, None, (-3.0, 40.0), 0.05, 0.3),
+        (3.0, 2e6, 0.3, (0.3, 80.0), 0.05, 0.3),
+        (10.0, 1e6, None, (-3.0, 160.0), 0.1, 0.3),
+        (40.0, 0.0, None, (0.0, 400.0), 0.1, 0.05),
     ],
 )
-def test_likelihood_is_normalised(mu, dark_rate, threshold, q_range, dq):
+def test_likelihood_is_normalised(mu, dark_rate, threshold, q_range, dq, overdispersion):
     with jax.enable_x64(True):
         q = charge_grid(q_range, dq)
         t = np.linspace(WINDOW[0], WINDOW[1], 401)
@@ -119,7 +127,8 @@ def test_likelihood_is_normalised(mu, dark_rate, threshold, q_range, dq):
             event = Event(jnp.arange(n, dtype=jnp.int32), jnp.asarray(q), jnp.full(n, t_value))
             return jnp.exp(
                 -sensor_nll(
-                    prediction, event, params, window=WINDOW, charge_threshold=threshold
+                    prediction, event, params, window=WINDOW, charge_threshold=threshold,
+                    overdispersion=overdispersion,
                 )
             )
 
@@ -128,7 +137,8 @@ def test_likelihood_is_normalised(mu, dark_rate, threshold, q_range, dq):
         p_hit = simpson(integrate_charge(grid, q), t)
         empty = hits([], [], [])
         unhit_nll = jax.jit(
-            lambda p, par: sensor_nll(p, empty, par, window=WINDOW, charge_threshold=threshold)
+            lambda p, par: sensor_nll(p, empty, par, window=WINDOW, charge_threshold=threshold,
+                                      overdispersion=overdispersion)
         )
         p_unhit = float(np.exp(-unhit_nll(make_prediction(mu, 1), make_params(1, dark_rate))[0]))
         assert p_hit > 1e-3
@@ -404,3 +414,102 @@ def test_second_derivatives_stay_finite_with_a_vanishing_component():
     without = weights.at[0, 0].set(0.0)
     assert float(log_density(weights)) == pytest.approx(float(log_density(without)),
                                                         abs=1e-6)
+
+
+# (g) overdispersion: a gamma-mixed (negative-binomial) count -------------------------------
+
+
+def _gamma_mixed_counts(rng, mu, r, size):
+    """Counts of a Poisson process whose mean mu is scaled by g ~ Gamma(mean 1, var r)."""
+    return rng.poisson(mu * rng.gamma(1.0 / r, r, size))
+
+
+@pytest.mark.parametrize(("mu", "r"), [(0.3, 0.3), (3.0, 0.3), (30.0, 0.3), (8.0, 0.05)])
+def test_overdispersed_charge_matches_monte_carlo(mu, r):
+    rng = np.random.default_rng(int(mu * 10) + 7)
+    n = _gamma_mixed_counts(rng, mu, r, 400_000)
+    n = n[n >= 1]
+    single = single_pe_charges(rng, int(n.sum()), SPE_WIDTH)
+    q = np.add.reduceat(single, np.concatenate([[0], np.cumsum(n)[:-1]]))
+    edges = np.quantile(q, np.linspace(0.0, 1.0, 41))[1:-1]
+    with jax.enable_x64(True):
+        cdf = np.exp(np.asarray(jax.jit(charge_logcdf, static_argnames="overdispersion")(
+            jnp.asarray(edges), mu, SPE_WIDTH, overdispersion=r)))
+    empirical = np.linspace(0.0, 1.0, 41)[1:-1]
+    if mu + 3.0 * np.sqrt(mu + r * mu * mu) < OVERDISPERSED_SWITCH - OVERDISPERSED_BLEND:
+        # exact negative-binomial sum: the model's cumulative at the sample's quantiles
+        # agrees within the sampling error (~1e-3).
+        assert np.max(np.abs(cdf - empirical)) < 4e-3
+    else:
+        # the Gamma approximation of the charge (mean and variance matched)
+        assert np.max(np.abs(cdf - empirical)) < 0.02
+    # The Poisson model misses the same sample by far more: the test can fail.
+    with jax.enable_x64(True):
+        poisson = np.exp(np.asarray(charge_logcdf(jnp.asarray(edges), mu, SPE_WIDTH)))
+    assert np.max(np.abs(poisson - empirical)) > 3.0 * np.max(np.abs(cdf - empirical))
+
+
+def test_overdispersed_first_hit_matches_polya_process():
+    mu_s, dark_rate, r = 3.0, 5e6, 0.3
+    with jax.enable_x64(True):
+        params = make_params(1, dark_rate)
+        mu_d = float(dark_expectation(params, WINDOW))
+        fine = np.linspace(WINDOW[0], WINDOW[1], 50 * 64 + 1)
+        density = np.exp(np.asarray(first_hit_logpdf(
+            make_prediction(mu_s, fine.size), jnp.asarray(fine), mu_d, WINDOW, r)))
+    cdf_fine = integrate.cumulative_trapezoid(density, fine, initial=0.0)
+    assert cdf_fine[-1] == pytest.approx(1.0, abs=1e-6)
+    rng = np.random.default_rng(3)
+    n_events = 200_000
+    gain = rng.gamma(1.0 / r, r, n_events)  # the sensor's whole intensity is scaled
+    n_sig, n_dark = rng.poisson(mu_s * gain), rng.poisson(mu_d * gain)
+    first = np.full(n_events, np.inf)
+    owner = np.repeat(np.arange(n_events), n_sig)
+    comp = rng.choice(2, size=owner.size, p=WEIGHTS)
+    np.minimum.at(first, owner, rng.normal(np.take(MEANS, comp), np.take(SIGMAS, comp)))
+    owner = np.repeat(np.arange(n_events), n_dark)
+    np.minimum.at(first, owner, rng.uniform(WINDOW[0], WINDOW[1], owner.size))
+    first = first[np.isfinite(first)]
+    assert stats.kstest(first, lambda x: np.interp(x, fine, cdf_fine)).pvalue > 1e-3
+    # the Poisson first-hit density is rejected by the same sample
+    with jax.enable_x64(True):
+        poisson = np.exp(np.asarray(first_hit_logpdf(
+            make_prediction(mu_s, fine.size), jnp.asarray(fine), mu_d, WINDOW)))
+    poisson_cdf = integrate.cumulative_trapezoid(poisson, fine, initial=0.0)
+    assert stats.kstest(first, lambda x: np.interp(x, fine, poisson_cdf)).pvalue < 1e-6
+
+
+def test_overdispersion_tends_to_poisson_and_stays_finite():
+    with jax.enable_x64(True):
+        mu = jnp.asarray([0.01, 0.3, 2.0, 9.0, 30.0])
+        q = jnp.asarray([1.0, 0.7, 2.5, 11.0, 40.0])
+        poisson = np.asarray(charge_logpdf(q, mu, 1.03))
+        # a small r through the Stirling branch, with the Poisson model's switch (the
+        # variance grows by r mu^2: 1e-3 at mu = 30)
+        small = np.asarray(charge_logpdf(q, mu, 1.03, overdispersion=1e-6, mu_switch=MU_SWITCH,
+                                         blend=MU_BLEND))
+    np.testing.assert_allclose(small, poisson, atol=2e-5)
+    # values and gradients finite at the extremes, with dark noise and a threshold
+    window = (0.0, 2.0e4)
+    mu = jnp.asarray([0.0, 1e-8, 1.0, 1e4, 0.0, 1e-8, 1.0, 1e4, 1e-3])
+    prediction = Prediction.from_components(
+        mu, jnp.asarray(WEIGHTS), jnp.asarray([100.0, 120.0]), jnp.asarray([1.0, 2.0]))
+    event = Event.make([4, 5, 6, 7, 8], [1.0, 1.0, 1.2, 1e4, 3.0],
+                       [100.0, 101.0, 99.0, 100.0, 1.01e4])
+    for threshold in (None, 0.25):
+        def total(pred, par, threshold=threshold):
+            return nll(pred, event, par, window=window, charge_threshold=threshold,
+                       overdispersion=0.3)
+        params = make_params(mu.size, 1e3, spe_width=1.03)
+        assert np.isfinite(float(jax.jit(total)(prediction, params)))
+        for leaf in jax.tree_util.tree_leaves(jax.jit(jax.grad(total, argnums=(0, 1)))(
+                prediction, params)):
+            assert np.all(np.isfinite(np.asarray(leaf)))
+
+
+@pytest.mark.parametrize("value", [-0.1, 0.7, "0.3"])
+def test_bad_overdispersion_is_refused(value):
+    prediction = make_prediction(1.0, 2)
+    with pytest.raises(ConfigError, match="overdispersion"):
+        nll(prediction, hits([0], [1.0], [40.0]), make_params(2), window=WINDOW,
+            overdispersion=value)

@@ -5,11 +5,13 @@ the fitted minimum (charge and first-hit-time terms apart).
     photonflow simulate --detector SK --particle mu- --energy 1000 --events 20 --seed 11 \\
         --out sk20.h5
     python studies/reconstruction/sk_muon_pulls.py sk20.h5 out.jsonl [--events 16]
+        [--first 0] [--overdispersion 0.3]
 
 One JSON row per event (appended as each is done): the fit, its covariance, the
 sandwich H^-1 J H^-1 (J: the sum over sensors of the outer products of the per-sensor
 scores of the negative log-likelihood in the covariance's coordinates) and the charge
-and time parts of nll(truth) - nll(fit). ``RecoSettings(fits=1)``, 1,024 rays, float32.
+and time parts of nll(truth) - nll(fit). ``RecoSettings(fits=1)``, 1,024 rays, float32,
+the likelihood's overdispersion from ``--overdispersion`` (default 0: Poisson).
 """
 
 from __future__ import annotations
@@ -42,10 +44,13 @@ def main() -> None:
     parser.add_argument("events")
     parser.add_argument("out")
     parser.add_argument("--events", dest="count", type=int, default=16)
+    parser.add_argument("--first", type=int, default=0)
+    parser.add_argument("--overdispersion", type=float, default=0.0)
     args = parser.parse_args()
+    settings = RecoSettings(fits=1, overdispersion=args.overdispersion)
     with pf.read_events(args.events) as events, open(args.out, "a") as out:
         detector, params = events.detector, events.params
-        functions = fitting._functions(detector, DTYPE, CONFIG)
+        functions = fitting._functions(detector, DTYPE, CONFIG, settings.overdispersion)
         predict = pf.expected_function(detector, DTYPE, config=CONFIG)
         window = tuple(float(x) for x in CONFIG.window)
         energy_range = functions.emission("mu-").energy_range
@@ -56,7 +61,8 @@ def main() -> None:
                 prediction = predict(data.params, track_from_local(frame, y), None,
                                      reference, emission=data.emission, arrays=data.sensors)
                 return dense_sensor_nll(prediction, data.hit, data.charge, data.time,
-                                        data.dark_rate, data.spe_width, window)
+                                        data.dark_rate, data.spe_width, window,
+                                        overdispersion=settings.overdispersion)
             return jax.jacfwd(per_sensor)(local)
 
         def parts(track, data):
@@ -68,13 +74,14 @@ def main() -> None:
             charge = float(functions.value(free, frame, cast, data, 0.0))
             return charge, full - charge
 
-        for k in range(min(args.count, len(events))):
+        for k in range(args.first, min(args.first + args.count, len(events))):
             event = events[k]
             truth = pf.Track("mu-", event.truth.position, event.truth.direction,
                              event.truth.energy, event.truth.time)
             result = reconstruct(detector, params, event, "mu-", config=CONFIG,
-                                 settings=RecoSettings(fits=1))
-            row = {"event": k, "seconds": result.seconds, "evaluations": result.evaluations,
+                                 settings=settings)
+            row = {"event": k, "overdispersion": settings.overdispersion,
+                   "seconds": result.seconds, "evaluations": result.evaluations,
                    "converged": result.converged, "failure": result.failure,
                    "nll": result.nll, "position": result.position.tolist(),
                    "direction": result.direction.tolist(), "energy": result.energy,

@@ -47,6 +47,9 @@ def reconstruct(
     max_iterations: Annotated[int, typer.Option(
         "--max-iterations", help="Optimiser iterations per fit stage.")]
     = _DEFAULTS.max_iterations,
+    overdispersion: Annotated[float, typer.Option(
+        help="r of the likelihood's per-sensor counts (variance mu + r mu^2), 0 to 0.5;"
+             " 0 is Poisson (docs/reconstruction.md).")] = _DEFAULTS.overdispersion,
     workers: Annotated[int | None, typer.Option(
         help="Reconstruct on a local Dask cluster of this many worker processes.")] = None,
     scheduler: Annotated[str | None, typer.Option(
@@ -69,6 +72,7 @@ def reconstruct(
     from ..errors import ConfigError
     from ..io import read_events
     from ..io.reco_file import RecoWriter
+    from ..likelihood import check_overdispersion
     from ..params import validate_params
     from ..reconstruction.batch import check_batch_options
 
@@ -99,10 +103,12 @@ def reconstruct(
                 raise ConfigError(f"--params = {str(params)!r}: not for the detector of"
                                   f" {events.name} ({error})") from None
         settings = RecoSettings(fits=fits, scan_directions=scan_directions,
-                                max_iterations=max_iterations)
+                                max_iterations=max_iterations,
+                                overdispersion=check_overdispersion(overdispersion))
         run = {"events": _file_identity(event_file), "particle": particle, "method": method,
                "params": params_id, "bounces": bounces, "fits": fits,
-               "scan_directions": scan_directions, "max_iterations": max_iterations}
+               "scan_directions": scan_directions, "max_iterations": max_iterations,
+               "overdispersion": settings.overdispersion}
         writer = RecoWriter(out, detector, run, events_file=str(events.resolve()),
                             mode=mode, resume=resume)
         _run_job(writer, event_file, detector, detector_params, particle, method, bounces,

@@ -42,7 +42,7 @@ from ..emission import emission_model
 from ..errors import ConfigError
 from ..generator.track import Track
 from ..geometry.sensor_arrays import sensors_for
-from ..likelihood import dark_expectation, dense_sensor_nll, hit_arrays
+from ..likelihood import check_overdispersion, dark_expectation, dense_sensor_nll, hit_arrays
 from ..numerics import default_float_dtype
 from ..transport.expected import expected_function
 from ..transport.optics import TransportConfig, orthonormal_basis
@@ -106,6 +106,9 @@ class RecoSettings:
         dtype: float dtype of the likelihood (None: JAX's default float for the
             gradient method, float64 for MINUIT, whose numerical derivatives need it: in
             float32 it stops short of its tolerance and HESSE's errors are noise).
+        overdispersion: r of the likelihood's per-sensor counts (variance mu + r mu^2;
+            ``photonflow.likelihood``), dimensionless in [0, 0.5]; 0 is Poisson.
+            ``docs/reconstruction.md`` says what it does to SK muons.
     """
 
     fits: int = 2
@@ -118,6 +121,10 @@ class RecoSettings:
     refresh_angle: float = 1.0
     margin: float = 0.0
     dtype: str | None = None
+    overdispersion: float = 0.0
+
+    def __post_init__(self):
+        check_overdispersion(self.overdispersion)
 
 
 def reconstruct(detector, params, event, particle: str = "mu-", method: str = "gradient",
@@ -160,7 +167,7 @@ def reconstruct(detector, params, event, particle: str = "mu-", method: str = "g
     precision = "float64" if method == "minuit" else None
     with jax.enable_x64(True) if method == "minuit" else contextlib.nullcontext():
         dtype = jnp.dtype(settings.dtype or precision or default_float_dtype())
-        functions = _functions(detector, dtype, config)
+        functions = _functions(detector, dtype, config, settings.overdispersion)
         data = _event_data(detector, params, event, dtype, functions)
         seed = _seed(detector, params, event, dtype) if start is None else start
         hypotheses = ("mu-", "e-") if particle == "auto" else (particle,)
@@ -233,20 +240,22 @@ jax.tree_util.register_dataclass(
                              "sensors", "emission"],
     meta_fields=[])
 
-#: Jitted functions per detector object, keyed by (dtype, config).
+#: Jitted functions per detector object, keyed by (dtype, config, overdispersion).
 _FUNCTIONS: WeakKeyDictionary = WeakKeyDictionary()
 
 
-def _functions(detector, dtype, config: TransportConfig) -> _Functions:
+def _functions(detector, dtype, config: TransportConfig,
+               overdispersion: float = 0.0) -> _Functions:
     """The cached ``_Functions`` of ``detector``."""
     cached = _FUNCTIONS.setdefault(detector, {})
-    key = (jnp.dtype(dtype).name, config)
+    key = (jnp.dtype(dtype).name, config, overdispersion)
     if key not in cached:
-        cached[key] = _build_functions(detector, dtype, config)
+        cached[key] = _build_functions(detector, dtype, config, overdispersion)
     return cached[key]
 
 
-def _build_functions(detector, dtype, config: TransportConfig) -> _Functions:
+def _build_functions(detector, dtype, config: TransportConfig,
+                     overdispersion: float = 0.0) -> _Functions:
     predict = expected_function(detector, dtype, config=config)
     window = tuple(float(x) for x in config.window)
     threshold = config.charge_threshold if config.charge_threshold > 0 else None
@@ -257,7 +266,8 @@ def _build_functions(detector, dtype, config: TransportConfig) -> _Functions:
         weight = jnp.asarray(time_weight, data.charge.dtype)
         return jnp.sum(dense_sensor_nll(prediction, data.hit, data.charge, data.time,
                                         data.dark_rate, data.spe_width, window,
-                                        charge_threshold=threshold, time_weight=weight))
+                                        charge_threshold=threshold, time_weight=weight,
+                                        overdispersion=overdispersion))
 
     def free_nll(free, frame, reference, data, time_weight=1.0):
         return track_nll(track_from_free(frame, free), reference, data, time_weight)
