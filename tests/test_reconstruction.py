@@ -219,3 +219,9 @@ def test_a_fit_without_a_positive_definite_hessian_is_not_converged(toy, sampled
                          settings=short, start=TRUTH)
     assert saddle.failure is None and not saddle.converged
     assert saddle.nll == pytest.approx(good.nll)
+
+
+@pytest.mark.parametrize("value", [-0.01, 0.51, float("nan")])
+def test_settings_refuse_an_overdispersion_outside_its_range(value):
+    with pytest.raises(ConfigError, match="overdispersion"):
+        RecoSettings(overdispersion=value)

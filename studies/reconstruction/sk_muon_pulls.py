@@ -65,13 +65,16 @@ def main() -> None:
                                         overdispersion=settings.overdispersion)
             return jax.jacfwd(per_sensor)(local)
 
-        def parts(track, data):
-            """(charge, time) terms of the negative log-likelihood at ``track``."""
+        def parts(track, data, reference):
+            """(charge, time) terms of the negative log-likelihood at ``track``, the rays
+            of the indirect light fixed by ``reference`` (one ray sample for the truth
+            and the fit: with another, the difference would carry the rays' noise)."""
             cast = fitting._cast_track(track, DTYPE)
             frame = fit_frame(detector.shape, track.direction, energy_range, "mu-", 0.0, DTYPE)
             free = free_from_track(frame, cast)
-            full = float(functions.value(free, frame, cast, data, 1.0))
-            charge = float(functions.value(free, frame, cast, data, 0.0))
+            reference = fitting._cast_track(reference, DTYPE)
+            full = float(functions.value(free, frame, reference, data, 1.0))
+            charge = float(functions.value(free, frame, reference, data, 0.0))
             return charge, full - charge
 
         for k in range(args.first, min(args.first + args.count, len(events))):
@@ -101,7 +104,8 @@ def main() -> None:
                                              data), np.float64)
                 inverse = np.asarray(result.covariance)
                 row["sandwich"] = (inverse @ (jacobian.T @ jacobian) @ inverse).tolist()
-                (q_truth, t_truth), (q_fit, t_fit) = parts(truth, data), parts(fitted, data)
+                (q_truth, t_truth), (q_fit, t_fit) = (parts(truth, data, fitted),
+                                                        parts(fitted, data, fitted))
                 row["nll_excess_charge"] = q_truth - q_fit
                 row["nll_excess_time"] = t_truth - t_fit
             out.write(json.dumps(row) + "\n")

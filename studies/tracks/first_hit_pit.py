@@ -3,6 +3,7 @@
 
     python studies/tracks/first_hit_pit.py [--detector SK] [--particle mu-]
         [--energy 1000] [--events 200] [--start 0,0,0] [--direction 1,0,0] [--keys 1]
+        [--overdispersion 0.3]
 
 Events from the generator + sampled transport, each detected photon's time smeared by the
 transit-time spread and shifted by its sensor's time offset; for every sensor j that
@@ -16,7 +17,9 @@ keys): flat if the predicted shape of the arrival times is right. Printed: the h
 (20 bins), its chi2 against flat, the same for sensors of expected charge < 1, 1-10 and
 > 10 p.e., and, for comparison, the PIT given the expected charge mu_j instead of n_j,
 (1 - exp(-mu_j F_j(t))) / (1 - exp(-mu_j)) (the likelihood's first-hit term), which also
-feels any overdispersion of the counts.
+feels any overdispersion of the counts, and that of the overdispersed likelihood
+(``--overdispersion`` r > 0: a Polya process),
+(1 - (1 + r mu_j F_j(t))^(-1/r)) / (1 - (1 + r mu_j)^(-1/r)).
 """
 
 from __future__ import annotations
@@ -56,9 +59,10 @@ def first_hits(detector, params, track, index, light, rng):
     return first, np.asarray(tally.n_pe)
 
 
-def pit_values(prediction, hits):
+def pit_values(prediction, hits, overdispersion=0.0):
     """(PIT given the true count, PIT given the expected charge, expected charge) of every
-    hit sensor over the events ``hits`` ((first times, counts) pairs)."""
+    hit sensor over the events ``hits`` ((first times, counts) pairs); the second with
+    counts of variance mu + r mu^2 for ``overdispersion`` r > 0."""
     given_count, given_mean, charges = [], [], []
     charge = np.asarray(prediction.charge, np.float64)
     for first, count in hits:
@@ -68,7 +72,12 @@ def pit_values(prediction, hits):
         cdf = np.clip(cdf, 0.0, 1.0)
         given_count.append(-np.expm1(count[hit] * np.log1p(-np.minimum(cdf, 1 - 1e-16))))
         mu = charge[hit]
-        given_mean.append(-np.expm1(-mu * cdf) / -np.expm1(-mu))
+        if overdispersion > 0:
+            r = overdispersion
+            given_mean.append(-np.expm1(-np.log1p(r * mu * cdf) / r)
+                              / -np.expm1(-np.log1p(r * mu) / r))
+        else:
+            given_mean.append(-np.expm1(-mu * cdf) / -np.expm1(-mu))
         charges.append(mu)
     return tuple(np.concatenate(x) for x in (given_count, given_mean, charges))
 
@@ -89,6 +98,7 @@ def main() -> None:
     parser.add_argument("--start", type=_vector, default=_vector("0,0,0"))
     parser.add_argument("--direction", type=_vector, default=_vector("1,0,0"))
     parser.add_argument("--keys", type=int, default=1)
+    parser.add_argument("--overdispersion", type=float, default=0.0)
     args = parser.parse_args()
     detector = pf.load_detector(args.detector)
     base = pf.default_params(detector)
@@ -123,9 +133,18 @@ def main() -> None:
             counts, chi2 = flatness(given_count[chosen])
             print(f"  mu {low:g}-{high:g} p.e.: {chosen.sum()} hits, chi2/ndf {chi2:.2f};"
                   f" first/last bins {counts[:3].tolist()} ... {counts[-3:].tolist()}")
-    counts, chi2 = flatness(given_mean)
-    print(f"PIT given the expected charge: chi2/ndf {chi2:.2f};"
-          f" histogram {' '.join(str(c) for c in counts)}")
+    rs = (0.0,) if args.overdispersion == 0 else (0.0, args.overdispersion)
+    for r in rs:
+        given_mean = pit_values(prediction, hits, r)[1]
+        counts, chi2 = flatness(given_mean)
+        print(f"PIT given the expected charge, overdispersion {r:g}: chi2/ndf {chi2:.2f};"
+              f" histogram {' '.join(str(c) for c in counts)}")
+        for low, high in ((0.0, 1.0), (1.0, 10.0), (10.0, np.inf)):
+            chosen = (charges >= low) & (charges < high)
+            if chosen.sum() >= 10 * BINS:
+                counts, chi2 = flatness(given_mean[chosen])
+                print(f"  mu {low:g}-{high:g} p.e.: chi2/ndf {chi2:.2f}; first/last bins"
+                      f" {counts[:3].tolist()} ... {counts[-3:].tolist()}")
 
 
 if __name__ == "__main__":

@@ -72,7 +72,7 @@ def reconstruct(
     from ..errors import ConfigError
     from ..io import read_events
     from ..io.reco_file import RecoWriter
-    from ..likelihood import check_overdispersion
+    from ..likelihood import MAX_OVERDISPERSION
     from ..params import validate_params
     from ..reconstruction.batch import check_batch_options
 
@@ -81,6 +81,9 @@ def reconstruct(
     check_count("--fits", fits, 1, 100)
     check_count("--scan-directions", scan_directions, 0, 1000)
     check_count("--max-iterations", max_iterations, 1, 100_000)
+    if not 0.0 <= overdispersion <= MAX_OVERDISPERSION:
+        raise ConfigError(f"--overdispersion = {overdispersion!r}: must be in"
+                          f" [0, {MAX_OVERDISPERSION}]")
     if workers is not None and scheduler is not None:
         raise ConfigError(f"--scheduler = {scheduler!r}: not with --workers (choose one)")
     if workers is not None:
@@ -104,7 +107,7 @@ def reconstruct(
                                   f" {events.name} ({error})") from None
         settings = RecoSettings(fits=fits, scan_directions=scan_directions,
                                 max_iterations=max_iterations,
-                                overdispersion=check_overdispersion(overdispersion))
+                                overdispersion=overdispersion)
         run = {"events": _file_identity(event_file), "particle": particle, "method": method,
                "params": params_id, "bounces": bounces, "fits": fits,
                "scan_directions": scan_directions, "max_iterations": max_iterations,
