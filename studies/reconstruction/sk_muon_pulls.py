@@ -5,12 +5,13 @@ the fitted minimum (charge and first-hit-time terms apart).
     photonflow simulate --detector SK --particle mu- --energy 1000 --events 20 --seed 11 \\
         --out sk20.h5
     python studies/reconstruction/sk_muon_pulls.py sk20.h5 out.jsonl [--events 16]
-        [--first 0] [--overdispersion 0.3]
+        [--first 0] [--overdispersion 0.3] [--rays 1024]
 
 One JSON row per event (appended as each is done): the fit, its covariance, the
 sandwich H^-1 J H^-1 (J: the sum over sensors of the outer products of the per-sensor
 scores of the negative log-likelihood in the covariance's coordinates) and the charge
-and time parts of nll(truth) - nll(fit). ``RecoSettings(fits=1)``, 1,024 rays, float32,
+and time parts of nll(truth) - nll(fit). ``RecoSettings(fits=1)``, float32, 1,024 rays
+unless ``--rays`` says otherwise,
 the likelihood's overdispersion from ``--overdispersion`` (default 0: Poisson).
 """
 
@@ -46,13 +47,15 @@ def main() -> None:
     parser.add_argument("--events", dest="count", type=int, default=16)
     parser.add_argument("--first", type=int, default=0)
     parser.add_argument("--overdispersion", type=float, default=0.0)
+    parser.add_argument("--rays", type=int, default=CONFIG.n_rays)
     args = parser.parse_args()
+    config = dataclasses.replace(CONFIG, n_rays=args.rays)
     settings = RecoSettings(fits=1, overdispersion=args.overdispersion)
     with pf.read_events(args.events) as events, open(args.out, "a") as out:
         detector, params = events.detector, events.params
-        functions = fitting._functions(detector, DTYPE, CONFIG, settings.overdispersion)
-        predict = pf.expected_function(detector, DTYPE, config=CONFIG)
-        window = tuple(float(x) for x in CONFIG.window)
+        functions = fitting._functions(detector, DTYPE, config, settings.overdispersion)
+        predict = pf.expected_function(detector, DTYPE, config=config)
+        window = tuple(float(x) for x in config.window)
         energy_range = functions.emission("mu-").energy_range
 
         @jax.jit
@@ -81,9 +84,9 @@ def main() -> None:
             event = events[k]
             truth = pf.Track("mu-", event.truth.position, event.truth.direction,
                              event.truth.energy, event.truth.time)
-            result = reconstruct(detector, params, event, "mu-", config=CONFIG,
+            result = reconstruct(detector, params, event, "mu-", config=config,
                                  settings=settings)
-            row = {"event": k, "overdispersion": settings.overdispersion,
+            row = {"event": k, "overdispersion": settings.overdispersion, "rays": config.n_rays,
                    "seconds": result.seconds, "evaluations": result.evaluations,
                    "converged": result.converged, "failure": result.failure,
                    "nll": result.nll, "position": result.position.tolist(),
