@@ -5,13 +5,13 @@ the fitted minimum (charge and first-hit-time terms apart).
     photonflow simulate --detector SK --particle mu- --energy 1000 --events 20 --seed 11 \\
         --out sk20.h5
     python studies/reconstruction/sk_muon_pulls.py sk20.h5 out.jsonl [--events 16]
-        [--first 0] [--overdispersion 0.3] [--rays 1024]
+        [--first 0] [--overdispersion 0.3] [--rays 1024] [--fits 1]
 
 One JSON row per event (appended as each is done): the fit, its covariance, the
 sandwich H^-1 J H^-1 (J: the sum over sensors of the outer products of the per-sensor
 scores of the negative log-likelihood in the covariance's coordinates) and the charge
-and time parts of nll(truth) - nll(fit). ``RecoSettings(fits=1)``, float32, 1,024 rays
-unless ``--rays`` says otherwise,
+and time parts of nll(truth) - nll(fit). ``RecoSettings(fits=1)`` (``--fits``), float32,
+1,024 rays unless ``--rays`` says otherwise,
 the likelihood's overdispersion from ``--overdispersion`` (default 0: Poisson).
 """
 
@@ -48,9 +48,10 @@ def main() -> None:
     parser.add_argument("--first", type=int, default=0)
     parser.add_argument("--overdispersion", type=float, default=0.0)
     parser.add_argument("--rays", type=int, default=CONFIG.n_rays)
+    parser.add_argument("--fits", type=int, default=1)
     args = parser.parse_args()
     config = dataclasses.replace(CONFIG, n_rays=args.rays)
-    settings = RecoSettings(fits=1, overdispersion=args.overdispersion)
+    settings = RecoSettings(fits=args.fits, overdispersion=args.overdispersion)
     with pf.read_events(args.events) as events, open(args.out, "a") as out:
         detector, params = events.detector, events.params
         functions = fitting._functions(detector, DTYPE, config, settings.overdispersion)
@@ -87,6 +88,7 @@ def main() -> None:
             result = reconstruct(detector, params, event, "mu-", config=config,
                                  settings=settings)
             row = {"event": k, "overdispersion": settings.overdispersion, "rays": config.n_rays,
+                   "fits": settings.fits,
                    "seconds": result.seconds, "evaluations": result.evaluations,
                    "converged": result.converged, "failure": result.failure,
                    "nll": result.nll, "position": result.position.tolist(),
