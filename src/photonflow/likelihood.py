@@ -124,12 +124,11 @@ def first_hit_logpdf(
         overdispersion: r, dimensionless (module docstring); 0: Poisson.
     """
     log_lambda, big_lambda = _log_intensity_and_integral(prediction, t, mu_dark, window)
-    mu = prediction.charge + mu_dark
+    log_hit = log1mexp(-log_no_photoelectron(prediction.charge + mu_dark, overdispersion))
     if overdispersion == 0:
-        return log_lambda - big_lambda - log1mexp(mu)
+        return log_lambda - big_lambda - log_hit
     r = overdispersion
-    return (log_lambda - (1.0 / r + 1.0) * jnp.log1p(r * big_lambda)
-            - log1mexp(-log_no_photoelectron(mu, r)))
+    return log_lambda - (1.0 / r + 1.0) * jnp.log1p(r * big_lambda) - log_hit
 
 
 def hit_arrays(event: Event, n: int, dtype) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -259,8 +258,8 @@ def dense_sensor_nll(
 
     r = overdispersion
     log_none = log_no_photoelectron(mu, r)
-    log_hit = log1mexp(mu) if r == 0 else log1mexp(-log_none)
-    log_hit = log_hit + charge_logpdf(q, mu, width, overdispersion=r)
+    log_some = log1mexp(-log_none)  # log P(n >= 1)
+    log_hit = log_some + charge_logpdf(q, mu, width, overdispersion=r)
     if use_time:
         time_term = first_hit_logpdf(prediction, t, mu_dark, window, r)
         if time_weight is not None:
@@ -271,8 +270,7 @@ def dense_sensor_nll(
     else:
         below = charge_logcdf(jnp.full(n, charge_threshold, dtype=dtype), mu, width,
                               overdispersion=r)
-        log_unhit = jnp.logaddexp(log_none, (log1mexp(mu) if r == 0 else log1mexp(-log_none))
-                                  + below)
+        log_unhit = jnp.logaddexp(log_none, log_some + below)
     return -where(hit, log_hit, log_unhit)
 
 
