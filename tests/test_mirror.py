@@ -20,6 +20,9 @@ from photonflow.transport.mirror_cover import _ellipses_covered
 from photonflow.transport.mirror_geometry import circle_reflections, focusing_ratio
 from photonflow.transport.optics import TransportConfig, specular_direction
 
+#: ``mirror_paths`` compiled (the shape static): 1.7 s instead of 12.6 s op by op.
+jitted_mirror_paths = jax.jit(mirror_paths, static_argnums=0)
+
 
 def test_circle_reflections_are_the_stationary_points_of_the_path_length():
     """Against a brute-force scan of |a - P| + |P - b| over 400,000 azimuths (float64)."""
@@ -161,9 +164,9 @@ def test_mirror_light_agrees_with_mirrored_rays(name):
         )
         source = IsotropicSource(position=[0.3, -0.2, 0.5], n_photons=1e6)
         source = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), source)
-        paths = mirror_paths(detector.shape, sensors_for(detector, jnp.float64), source)
+        paths = jitted_mirror_paths(detector.shape, sensors_for(detector, jnp.float64), source)
         quad = np.asarray(
-            mirror_light(params, paths, source, jnp.zeros(detector.n_sensors))[0]
+            jax.jit(mirror_light)(params, paths, source, jnp.zeros(detector.n_sensors))[0]
         )
         estimate = jax.jit(lambda key: _ray_estimate(detector, params, source, 1 << 20, key))
         rays = np.stack([np.asarray(estimate(jax.random.key(k))) for k in range(4)])
@@ -192,7 +195,7 @@ def test_mirror_paths_computed_once_give_the_same_prediction():
         source = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), source)
         sensors = sensors_for(detector, jnp.float64)
         config = TransportConfig(n_bounces=1, n_rays=64)
-        paths = mirror_paths(detector.shape, sensors, source)
+        paths = jitted_mirror_paths(detector.shape, sensors, source)
         assert float(jnp.sum(paths.weight)) > 0
 
         def charge(values, mirror):
