@@ -225,3 +225,29 @@ def test_a_fit_without_a_positive_definite_hessian_is_not_converged(toy, sampled
 def test_settings_refuse_an_overdispersion_outside_its_range(value):
     with pytest.raises(ConfigError, match="overdispersion"):
         RecoSettings(overdispersion=value)
+
+
+def test_the_fit_is_seeded_with_the_configured_emission_model(toy, sampled_event,
+                                                               monkeypatch):
+    """With ``emission_model="siren"`` the starts and energy range come from the SIREN
+    model that the likelihood evaluates, not from the default spline."""
+    from photonflow.emission.siren import SirenEmission
+    from photonflow.reconstruction import fit
+
+    detector, params = toy
+    config = dataclasses.replace(CONFIG, emission_model="siren")
+    functions = fit._functions(detector, jnp.float32, config)
+    data = fit._event_data(detector, params, sampled_event, jnp.float32, functions)
+    seen = {}
+
+    class Captured(Exception):
+        pass
+
+    def capture(functions, detector, model, data, start, settings):
+        seen.update(model=model, emission=data.emission)
+        raise Captured
+
+    monkeypatch.setattr(fit, "_minimise_gradient", capture)
+    with pytest.raises(Captured):
+        fit._fit_particle(functions, detector, params, data, TRUTH, "mu-", "gradient", FAST)
+    assert isinstance(seen["model"], SirenEmission) and seen["emission"] is seen["model"]

@@ -330,8 +330,8 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
     """The best fit of ``particle`` over the starts (``seed``: a ``seeding.Seed``, or a
     ``Track``: the only start)."""
     began = clock.perf_counter()
-    model = emission_model(particle, detector_medium(detector))
-    data = dataclasses.replace(data, emission=functions.emission(particle))
+    model = functions.emission(particle)  # the configured model (spline or SIREN)
+    data = dataclasses.replace(data, emission=model)
     minimise = _minimise_gradient if method == "gradient" else _minimise_minuit
     if isinstance(seed, Track):
         fit = minimise(functions, detector, model, data, seed, settings)
