@@ -16,8 +16,8 @@ import jax
 import numpy as np
 
 import photonflow as pf
-from photonflow.transport.sampled import sample_photon_bundle
-from photonflow.transport.tracks import spectral_params, track_light, track_photons
+from photonflow.transport.pseudo_data import sample_track_tally
+from photonflow.transport.tracks import track_light
 
 BINS = ((0.0, 0.3), (0.3, 1.0), (1.0, 3.0), (3.0, 10.0), (10.0, 30.0))
 
@@ -33,9 +33,8 @@ def main() -> None:
     light = track_light(detector)
     counts = np.zeros((args.events, detector.n_sensors))
     for index in range(args.events):
-        photons = track_photons(detector, track, 7, index, light)
-        tally = sample_photon_bundle(detector, spectral_params(params, light), photons,
-                                     jax.random.key(index), source_time=0.0)
+        tally = sample_track_tally(detector, params, track, jax.random.key(index), 7, index,
+                                   light)
         counts[index] = np.asarray(tally.n_pe)
     expected = np.asarray(pf.expected(detector, params, track,
                                       config=pf.TransportConfig(n_rays=4096)).charge, float)

@@ -18,8 +18,8 @@ import jax
 import numpy as np
 
 import photonflow as pf
-from photonflow.transport.sampled import sample_photon_bundle
-from photonflow.transport.tracks import spectral_params, track_light, track_photons
+from photonflow.transport.pseudo_data import sample_track_tally
+from photonflow.transport.tracks import track_light
 
 
 def _vector(text: str) -> np.ndarray:
@@ -56,9 +56,8 @@ def main() -> None:
     light = track_light(detector)
     counts = np.zeros((args.events, detector.n_sensors))
     for index in range(args.events):
-        photons = track_photons(detector, track, 7, index, light)
-        tally = sample_photon_bundle(detector, spectral_params(params, light), photons,
-                                     jax.random.key(index), source_time=0.0)
+        tally = sample_track_tally(detector, params, track, jax.random.key(index), 7, index,
+                                   light)
         counts[index] = np.asarray(tally.n_pe)
     mean = counts.mean(axis=0)
     error = counts.std(axis=0, ddof=1) / np.sqrt(args.events)

@@ -33,8 +33,8 @@ import numpy as np
 
 import photonflow as pf
 from photonflow.progress import with_progress
-from photonflow.transport.sampled import sample_photon_bundle
-from photonflow.transport.tracks import spectral_params, track_light, track_photons
+from photonflow.transport.pseudo_data import sample_track_tally
+from photonflow.transport.tracks import track_light
 
 BINS = 20
 
@@ -43,13 +43,22 @@ def _vector(text: str) -> np.ndarray:
     return np.array([float(x) for x in text.split(",")])
 
 
+def print_bands(pit, charges) -> None:
+    """Print the PIT's flatness by the sensors' expected charge (< 1, 1-10, > 10 p.e.),
+    for bands of at least 10 hits per bin."""
+    for low, high in ((0.0, 1.0), (1.0, 10.0), (10.0, np.inf)):
+        chosen = (charges >= low) & (charges < high)
+        if chosen.sum() >= 10 * BINS:
+            counts, chi2 = flatness(pit[chosen])
+            print(f"  mu {low:g}-{high:g} p.e.: {chosen.sum()} hits, chi2/ndf {chi2:.2f};"
+                  f" first/last bins {counts[:3].tolist()} ... {counts[-3:].tolist()}")
+
+
 def first_hits(detector, params, track, index, light, rng):
     """(first-hit time per sensor, ns, inf where none; photons per sensor) of event
     ``index``: generator + sampled transport, each photon's time + tts x N(0, 1) + its
     sensor's time offset."""
-    photons = track_photons(detector, track, 7, index, light)
-    tally = sample_photon_bundle(detector, spectral_params(params, light), photons,
-                                 jax.random.key(index), source_time=0.0)
+    tally = sample_track_tally(detector, params, track, jax.random.key(index), 7, index, light)
     sensor = np.asarray(tally.photon_sensor)
     time = np.asarray(tally.photon_time, np.float64) \
         + float(params.tts) * rng.standard_normal(sensor.size) \
@@ -127,24 +136,15 @@ def main() -> None:
     print(f"{args.detector} {args.particle} {args.energy:g} MeV: {given_count.size} first"
           f" hits, PIT given the count chi2/ndf {chi2:.2f} (ndf {BINS - 1})")
     print("histogram:", " ".join(str(c) for c in counts))
-    for low, high in ((0.0, 1.0), (1.0, 10.0), (10.0, np.inf)):
-        chosen = (charges >= low) & (charges < high)
-        if chosen.sum() >= 10 * BINS:
-            counts, chi2 = flatness(given_count[chosen])
-            print(f"  mu {low:g}-{high:g} p.e.: {chosen.sum()} hits, chi2/ndf {chi2:.2f};"
-                  f" first/last bins {counts[:3].tolist()} ... {counts[-3:].tolist()}")
+    print_bands(given_count, charges)
     rs = (0.0,) if args.overdispersion == 0 else (0.0, args.overdispersion)
     for r in rs:
-        given_mean = pit_values(prediction, hits, r)[1]
+        if r > 0:
+            given_mean = pit_values(prediction, hits, r)[1]
         counts, chi2 = flatness(given_mean)
         print(f"PIT given the expected charge, overdispersion {r:g}: chi2/ndf {chi2:.2f};"
               f" histogram {' '.join(str(c) for c in counts)}")
-        for low, high in ((0.0, 1.0), (1.0, 10.0), (10.0, np.inf)):
-            chosen = (charges >= low) & (charges < high)
-            if chosen.sum() >= 10 * BINS:
-                counts, chi2 = flatness(given_mean[chosen])
-                print(f"  mu {low:g}-{high:g} p.e.: chi2/ndf {chi2:.2f}; first/last bins"
-                      f" {counts[:3].tolist()} ... {counts[-3:].tolist()}")
+        print_bands(given_mean, charges)
 
 
 if __name__ == "__main__":

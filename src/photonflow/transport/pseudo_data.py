@@ -69,20 +69,28 @@ def _event_keys(seed, index):
     return keys[0], keys[1]
 
 
+def sample_track_tally(detector: Detector, params: Params, track: Track, key, seed: int,
+                       index: int, light, *, config: TransportConfig = DEFAULT_CONFIG,
+                       grid=None):
+    """The photoelectrons of event ``index`` of ``seed`` of a particle ``track``: its
+    photons from the generator (``tracks.track_photons``) followed through the detector
+    with ``key`` (``sampled.sample_photon_bundle``; ``light``: ``tracks.track_light``
+    of the detector). Returns the ``PhotonTally`` (p.e. per sensor, photon times ns,
+    before the charge response)."""
+    return sample_photon_bundle(
+        detector, spectral_params(params, light),
+        track_photons(detector, track, seed, index, light), key,
+        source_time=track.time, config=config, grid=grid,
+    )
+
+
 def _event(detector, params, source, seed, index, config, grid, light) -> Event:
     """Event ``index`` of ``seed``: transport and response keys split from
     ``fold_in(PRNGKey(seed), index)``; a track's photons from ``track_photons``."""
     transport_key, response_key = event_keys(seed, index)
     if isinstance(source, Track):
-        tally = sample_photon_bundle(
-            detector,
-            spectral_params(params, light),
-            track_photons(detector, source, seed, index, light),
-            transport_key,
-            source_time=source.time,
-            config=config,
-            grid=grid,
-        )
+        tally = sample_track_tally(detector, params, source, transport_key, seed, index,
+                                   light, config=config, grid=grid)
         truth = track_truth(source, seed)
     else:
         tally = sample_photons(detector, params, source, transport_key, config=config, grid=grid)
