@@ -22,6 +22,13 @@ from .sensor_grid import SensorGrid, build_sensor_grid
 #: Sensors nearer than this many disc radii to a point are listed by the near-sensor
 #: grid (``near_grid_for``): the expected mode computes their solid angle exactly.
 NEAR_RADII = 4.0
+#: The widest disc, in disc radii, over which the expected mode may average a sensor's
+#: light (``specular_probes``): half a radius inside the near grid's reach.
+WIDEST_DISC = NEAR_RADII - 0.5
+#: How far (m) a disc's plane may leave the detector and still count as in front of its
+#: own wall face (``face_reach_for``; the sag of SK's barrel under a tangent plane is
+#: 1.7 cm at 0.75 m from the tangent point).
+FACE_TOLERANCE = 0.05
 
 
 @pytree_dataclass
@@ -38,6 +45,9 @@ class Sensors:
         near_grid: the grid listing every sensor within ``NEAR_RADII`` radii of a
             point (``near_grid_for``); None for an open medium, or to use the far-field
             solid angle everywhere.
+        face_reach: (N,) how far each disc's plane stays in front of its own wall face,
+            in disc radii, between 1 and ``WIDEST_DISC`` (``face_reach_for``); None
+            without a near grid.
     """
 
     positions: jax.Array
@@ -45,6 +55,7 @@ class Sensors:
     radius: jax.Array
     grid: SensorGrid | None = None
     near_grid: SensorGrid | None = None
+    face_reach: jax.Array | None = None
 
     @property
     def n(self) -> int:
@@ -80,6 +91,8 @@ def _build(detector: Detector, dtype, grid: SensorGrid | None, near: bool) -> Se
             radius=strict_array(detector.sensor_radius, dtype),
             grid=grid,
             near_grid=near_grid_for(detector) if near else None,
+            face_reach=(strict_array(face_reach_for(detector), dtype)
+                        if near and detector.shape.has_walls else None),
         )
 
 
@@ -99,6 +112,34 @@ def near_grid_for(detector: Detector) -> SensorGrid | None:
         largest = float(np.max(np.asarray(detector.sensor_radius)))
         _NEAR_GRIDS[detector] = build_sensor_grid(detector, margin=(NEAR_RADII - 1) * largest)
     return _NEAR_GRIDS[detector]
+
+
+def face_reach_for(detector: Detector, steps: int = 9, azimuths: int = 16) -> np.ndarray:
+    """(N,) the widest disc, in units of each sensor's radius (1 to ``WIDEST_DISC``),
+    concentric with the sensor in its plane whose rim stays inside the walled detector
+    within ``FACE_TOLERANCE``: the disc does not reach across an edge of its wall face
+    (a cylinder's rim, a box's edge). Tested at ``steps`` widths x ``azimuths`` rim
+    points (numpy, once per detector)."""
+    positions = np.asarray(detector.sensor_positions, float)
+    normals = np.asarray(detector.sensor_normals, float)
+    radius = np.asarray(detector.sensor_radius, float) * np.ones(len(positions))
+    # Duff et al.'s branch-free basis (``solid_angle.plane_basis``), in numpy: no eager
+    # JAX programs at detector set-up
+    sign = np.where(normals[:, 2] >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + normals[:, 2])
+    b = normals[:, 0] * normals[:, 1] * a
+    u = np.stack([1.0 + sign * normals[:, 0] ** 2 * a, sign * b, -sign * normals[:, 0]], -1)
+    v = np.stack([b, sign + normals[:, 1] ** 2 * a, -normals[:, 1]], -1)
+    angle = np.linspace(0.0, 2.0 * np.pi, azimuths, endpoint=False)
+    rim = np.cos(angle)[:, None, None] * u + np.sin(angle)[:, None, None] * v  # (A, N, 3)
+    reach = np.ones(len(positions))
+    inside_so_far = np.ones(len(positions), bool)
+    for width in np.linspace(1.0, WIDEST_DISC, steps):
+        points = positions + width * radius[:, None] * rim
+        inside = np.all(np.asarray(detector.shape.contains(points, FACE_TOLERANCE)), axis=0)
+        inside_so_far &= inside
+        reach = np.where(inside_so_far, width, reach)
+    return reach
 
 
 #: Memo of ``Sensors`` per detector object, keyed by (dtype, near) (a pure cache).

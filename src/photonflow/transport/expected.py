@@ -41,7 +41,7 @@ from ..response.expected import SensorLight, expected_response
 from ..sources import check_source
 from .direct import direct_light_jit
 from .indirect import indirect_light_jit
-from .optics import TransportConfig
+from .optics import TransportConfig, check_config
 from .track_expected import track_expected_jit
 from .tracks import check_track, detector_medium, principal_sensor_model
 
@@ -157,7 +157,7 @@ def expected_function(
         config: static transport settings (default ``TransportConfig()``).
         grid: sensor lookup grid (default: built once per detector object).
     """
-    config = TransportConfig() if config is None else config
+    config = check_config(TransportConfig() if config is None else config)
     dtype = default_float_dtype() if dtype is None else jnp.dtype(dtype)
     if grid is not None:
         return _predictor(detector, dtype, config, grid)

@@ -46,18 +46,22 @@ whose last vertex is a specular wall reflection is found by *specular probes*
 ``config.specular_probes`` rays leave in directions drawn from the same proposals as the
 continuation (off the glass: from a point uniform on the disc, as the NEE's dome density
 assumes), each with 1 / ``config.specular_probes`` of the weight; one that reaches the
-wall survives with exp(-rate_total t) R_w f_s, is mirrored, and counts on the sensor its
-mirrored segment ends on (attributed to order k + 1). From the source (k = 0) the probes
-are emission directions of their own and count only paths focused below
-``FOCUSING_LIMIT`` (the rest is ``mirror_light``). No branch choice is made along a
-probe, so each carries far less weight than a continuing ray would; the variance of the
-mirrored light falls 5-7x on SK at 8 probes.
+wall survives with exp(-rate_total t) R_w f_s, is mirrored, and counts on the sensors
+whose discs, widened by ``config.specular_smoothing`` in their own plane, its mirrored
+ray crosses, with 1 / smoothing^2 of its weight (attributed to order k + 1). From the
+source (k = 0) the probes are emission directions of their own, count on the physical
+discs and only for paths focused below ``FOCUSING_LIMIT`` (the rest is
+``mirror_light``). No branch choice is made along a probe, so each carries far less
+weight than a continuing ray would; the variance of the mirrored light falls 5-7x on SK
+at 8 probes on the physical discs, and the widened discs cut it several-fold more. The
+vertices of the last order have no probes (their mirror vertex would be above the cap).
 
 After the last vertex its outgoing segment is traced once more: the expected photons
 that would undergo a further vertex (scatter or reflection) on it are the
 ``residual_weight``. Every path with <= n_bounces vertices is estimated without bias (up
 to the disc solid angle approximation of the NEE, the acceptance taken at the disc
-centre, and glass reflections drawn for light crossing the disc uniformly).
+centre, glass reflections drawn for light crossing the disc uniformly, and the widened
+discs' average of the mirrored light, ~10^-4 of a sensor's light on SK).
 
 All of it is the light of a sensor of relative efficiency 1 before its time offset: the
 sensor response (``photonflow.response``) applies both. The parts live in their own
@@ -177,7 +181,8 @@ def indirect_light_jit(
         everything = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), from_source, below_cap)
         quadrature = getattr(source, "mirror_quadrature", True)
         mirrored = specular_probes(
-            params, shape, sensors, reference_time, everything, config.n_bounces, quadrature
+            params, shape, sensors, reference_time, everything, config.n_bounces, quadrature,
+            config.specular_smoothing,
         )
         total = [t + m for t, m in zip(total, mirrored, strict=True)]
         if quadrature:

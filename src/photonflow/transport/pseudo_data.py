@@ -22,9 +22,8 @@ from ..params import Params, validate_params
 from ..progress import with_progress
 from ..response.hits import photoelectrons_to_event
 from ..sources import DiffuserSource, IsotropicSource, LaserSource, check_source
-from .optics import DEFAULT_CONFIG, TransportConfig
+from .optics import DEFAULT_CONFIG, TransportConfig, check_config
 from .sampled import (
-    check_config,
     check_seed,
     grid_for,
     photon_count,

@@ -193,15 +193,15 @@ def disc_point(normal, radius, u1, u2):
     return rho * (jnp.cos(phi) * e1 + jnp.sin(phi) * e2)
 
 
-def leaving(propose, sensors, u_all, vertex, index, kind, directions):
+def leaving(propose, sensors, u_all, vertex, index, kind, directions, continuation=True):
     """The continuation and the probes leaving the vertices, from one proposal
-    (``propose``: ``outgoing`` with its vertex arguments bound): ``u_all`` (8, 1 + K, R)
-    uniforms, set 0 the continuation, sets 1..K the probes. Off the glass the
-    continuation is mirrored about the dome where the ray crossed the disc; a probe
-    leaves a point drawn uniformly on the disc, mirrored about the dome there, as the
-    NEE's ``dome_reflection_density`` assumes. Returns
-    (origins (1 + K, R, 3) m, unit directions (1 + K, R, 3), weight factors
-    (1 + K, R)); the continuation leaves the vertex itself."""
+    (``propose``: ``outgoing`` with its vertex arguments bound): ``u_all`` (8, K, R)
+    uniforms, set 0 the continuation (if ``continuation``), the others probes. Off the
+    glass the continuation is mirrored about the dome where the ray crossed the disc; a
+    probe leaves a point drawn uniformly on the disc, mirrored about the dome there, as
+    the NEE's ``dome_reflection_density`` assumes. Returns (origins (K, R, 3) m, unit
+    directions (K, R, 3), weight factors (K, R)); the continuation leaves the vertex
+    itself."""
     centre, disc_normal = sensors.positions[index], sensors.normals[index]
     disc_radius = sensors.radius[index]
     glass = (kind == GLASS)[:, None]
@@ -213,7 +213,8 @@ def leaving(propose, sensors, u_all, vertex, index, kind, directions):
         origin = where(glass & drawn, centre + crossing, vertex)
         return origin, direction, factor
 
-    return jax.vmap(one, in_axes=(1, 0))(u_all, jnp.arange(u_all.shape[1]) > 0)
+    drawn = jnp.arange(u_all.shape[1]) >= (1 if continuation else 0)
+    return jax.vmap(one, in_axes=(1, 0))(u_all, drawn)
 
 
 def vertex_step(params, shape, sensors: Sensors, config, nee, vertex_key, probe_key,
@@ -251,25 +252,34 @@ def vertex_step(params, shape, sensors: Sensors, config, nee, vertex_key, probe_
     still_on_disc = (kind == WALL) & (s == 0)
     own_disc = where(kind == GLASS, index, where(still_on_disc, rays.on_disc, n))
     detected = nee(vertex, weight, time, kind, directions, normal, own_disc)
-    u_all = u[:, None]
-    if has_walls:  # probes: light of this vertex mirrored once by the wall into a sensor
-        u_probe = jax.random.uniform(
-            jax.random.fold_in(probe_key, order),
-            (UNIFORMS_PER_VERTEX, config.specular_probes, n_rays),
-            dtype=dtype,
-        )
-        u_all = jnp.concatenate([u_all, u_probe], axis=1)
     propose = functools.partial(outgoing, params, config, kind, directions, normal)
-    origins, leaving_directions, factor = leaving(propose, sensors, u_all, vertex, index,
+    origins, leaving_directions, factor = leaving(propose, sensors, u[:, None], vertex, index,
                                                   kind, directions)
     probes = None
-    if has_walls:
+    if has_walls:  # probes: light of this vertex mirrored once by the wall into a sensor
         count = config.specular_probes
+
+        def probes_leaving(_):
+            u_probe = jax.random.uniform(
+                jax.random.fold_in(probe_key, order), (UNIFORMS_PER_VERTEX, count, n_rays),
+                dtype=dtype,
+            )
+            return leaving(propose, sensors, u_probe, vertex, index, kind, directions,
+                           continuation=False)
+
+        def no_probes(_):  # the last order's vertices have none (their mirror vertex
+            # would be above the cap)
+            return (jnp.zeros((count, n_rays, 3), dtype), jnp.zeros((count, n_rays, 3), dtype),
+                    jnp.zeros((count, n_rays), dtype))
+
+        probe_origins, probe_directions, probe_factor = jax.lax.cond(
+            order < config.n_bounces, probes_leaving, no_probes, None
+        )
         probes = Probes(
-            origins=origins[1:].reshape(-1, 3),
-            directions=leaving_directions[1:].reshape(-1, 3),
-            weight=(weight * factor[1:] / count).reshape(-1),
-            time=jnp.broadcast_to(time, factor[1:].shape).reshape(-1),
+            origins=probe_origins.reshape(-1, 3),
+            directions=probe_directions.reshape(-1, 3),
+            weight=(weight * probe_factor / count).reshape(-1),
+            time=jnp.broadcast_to(time, probe_factor.shape).reshape(-1),
             order=jnp.full(count * n_rays, order, jnp.int32),
         )
     rays = Rays(vertex, leaving_directions[0], weight * factor[0], time, own_disc)

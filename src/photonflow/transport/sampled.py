@@ -40,7 +40,7 @@ from ..sources import (
     check_source,
 )
 from .emission import sample_directions
-from .optics import DEFAULT_CONFIG, TransportConfig
+from .optics import DEFAULT_CONFIG, TransportConfig, check_config
 from .photon_loop import (
     ABSORBED_BULK,
     ABSORBED_SENSOR,
@@ -104,26 +104,6 @@ class PhotonTally:
     def n_sensors(self) -> int:
         """Number of sensors N."""
         return int(self.n_pe.shape[0])
-
-
-def check_config(config: TransportConfig) -> TransportConfig:
-    """Raise a one-line ``ConfigError`` for an unusable ``TransportConfig``; return it."""
-
-    def bad(name, value, rule):
-        return ConfigError(f"config.{name} = {format_value(value)}: {rule}")
-
-    for name in ("n_bounces", "batch_size"):
-        value = getattr(config, name)
-        minimum = 0 if name == "n_bounces" else 1
-        if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < minimum:
-            raise bad(name, value, f"must be an integer >= {minimum}")
-    start, end = (float(x) for x in config.window)
-    if not (math.isfinite(start) and math.isfinite(end) and start < end):
-        raise bad("window", config.window, "must be finite (start, end) ns with start < end")
-    for name in ("charge_threshold", "rayleigh_anisotropy"):
-        if not math.isfinite(float(getattr(config, name))):
-            raise bad(name, getattr(config, name), "must be finite")
-    return config
 
 
 def photon_count(source) -> int:
