@@ -7,7 +7,9 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
+from photonflow.errors import ConfigError
 from photonflow.geometry import preset_detector
 from photonflow.geometry.sensor_arrays import (
     FACE_TOLERANCE,
@@ -16,6 +18,8 @@ from photonflow.geometry.sensor_arrays import (
     sensors_for,
 )
 from photonflow.params import default_params
+from photonflow.transport.expected import expected_function
+from photonflow.transport.optics import TransportConfig
 from photonflow.transport.rays import Probes
 from photonflow.transport.specular_probes import specular_probes
 
@@ -96,3 +100,13 @@ def test_widened_discs_keep_the_mirrored_light_and_cut_its_noise():
         error = share.std(ddof=1) / math.sqrt(KEYS)
         assert abs(share.mean()) < 4 * error + 0.01 * disc[:, group].sum(axis=1).mean()
     assert wide.var(axis=0, ddof=1).sum() < disc.var(axis=0, ddof=1).sum() / 3
+
+
+def test_a_disc_wider_than_the_near_grid_reaches_is_a_config_error():
+    """Discs are looked up within NEAR_RADII radii of the mirrored ray's wall point: a
+    wider widening would lose light silently, so it is refused with one line naming
+    the field."""
+    detector = preset_detector("TOY_CYLINDER")
+    for value in (0.5, WIDEST_DISC + 0.5):
+        with pytest.raises(ConfigError, match=r"^config\.specular_smoothing = .*between 1"):
+            expected_function(detector, config=TransportConfig(specular_smoothing=value))

@@ -83,7 +83,7 @@ class TransportConfig:
     charge_threshold: float = 0.0
     batch_size: int = 1 << 17
     mie_proposal_asymmetry: float = 0.4
-    specular_probes: int = 16
+    specular_probes: int = 12
     specular_smoothing: float = 3.5
     emission_model: str = "spline"
 

@@ -106,6 +106,7 @@ def specular_probes(params, shape, sensors: Sensors, reference, probes: Probes, 
     reach = factor * sensors.radius[index]
     counts = ((candidates >= 0) & front & (t_plane > 0) & (offset2 < reach * reach)
               & (reaches_wall & counted)[:, None])
+    t_plane = where(counts, t_plane, 0.0)  # finite attenuation (and gradient) elsewhere
     rate_total = interaction_rates(params)[3]
     detected = where(
         counts,
@@ -116,7 +117,7 @@ def specular_probes(params, shape, sensors: Sensors, reference, probes: Probes, 
         0.0,
     )
     arrival = ((probes.time + travel_time(t_wall, params))[:, None] - reference[index]
-               + travel_time(where(counts, t_plane, 0.0), params))
+               + travel_time(t_plane, params))
     sums = _scatter_moments(detected, arrival, probes.order[:, None] * n + index, n_orders * n)
     return tuple(x.reshape(n_orders, n) for x in sums)
 
