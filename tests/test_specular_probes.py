@@ -14,6 +14,7 @@ from photonflow.geometry import preset_detector
 from photonflow.geometry.sensor_arrays import (
     FACE_TOLERANCE,
     WIDEST_DISC,
+    Sensors,
     face_reach_for,
     sensors_for,
 )
@@ -50,12 +51,15 @@ def test_face_reach_stops_at_the_rim_of_a_cylinder():
     assert np.all(reach[tight] * radius[tight] >= room[tight] - (step + 0.05) * radius[tight])
 
 
-def _mirrored_light(smoothing):
+def _mirrored_light(smoothing, keys=KEYS, bare=False):
     """Light of order-1 probes (random vertices in TOY_CYLINDER, isotropic directions,
-    1 / PROBES photons each) mirrored into each sensor, (N,), one call per key."""
+    1 / PROBES photons each) mirrored into each sensor, (keys, N); ``bare``: sensors
+    without lookup grids (every disc tested)."""
     detector = preset_detector("TOY_CYLINDER")
     shape = detector.shape
     sensors = sensors_for(detector)
+    if bare:
+        sensors = Sensors(sensors.positions, sensors.normals, sensors.radius)
     params = default_params(detector)
     reference = jnp.zeros(sensors.n)
 
@@ -77,7 +81,7 @@ def _mirrored_light(smoothing):
                                        smoothing)
         return charge[1]
 
-    return np.stack([np.asarray(light(jax.random.key(k))) for k in range(KEYS)])
+    return np.stack([np.asarray(light(jax.random.key(k))) for k in range(keys)])
 
 
 def test_widened_discs_keep_the_mirrored_light_and_cut_its_noise():
@@ -110,3 +114,12 @@ def test_a_disc_wider_than_the_near_grid_reaches_is_a_config_error():
     for value in (0.5, WIDEST_DISC + 0.5):
         with pytest.raises(ConfigError, match=r"^config\.specular_smoothing = .*between 1"):
             expected_function(detector, config=TransportConfig(specular_smoothing=value))
+
+
+def test_the_grid_lookup_finds_every_disc_a_mirrored_ray_crosses():
+    """On the physical discs, candidates from the near grid around the wall point give
+    the light of testing every disc."""
+    grid = _mirrored_light(1.0, keys=2)
+    every = _mirrored_light(1.0, keys=2, bare=True)
+    assert grid.sum() > 0
+    np.testing.assert_allclose(grid, every, rtol=1e-5, atol=1e-12)

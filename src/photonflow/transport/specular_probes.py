@@ -58,7 +58,8 @@ def specular_probes(params, shape, sensors: Sensors, reference, probes: Probes, 
     face): the variance of a sensor's count falls ~ 1 / smoothing^2, and the bias is the
     flux's curvature over the wider disc, (smoothing r)^2 / 8 x its Laplacian. The discs
     are looked up around the mirrored ray's wall point in ``sensors.near_grid`` (every
-    disc within ``NEAR_RADII`` radii); without it, the physical discs are used.
+    disc within ``NEAR_RADII`` radii); without it (or without ``face_reach``) the
+    physical discs are used, looked up in ``sensors.grid``, or all tested without one.
     Probes from the source count only paths focused below ``FOCUSING_LIMIT`` (the rest
     is ``mirror_light``), or every path without ``source_quadrature`` (a track);
     ``probes.order`` (P,) says which left the source (0).
@@ -81,13 +82,14 @@ def specular_probes(params, shape, sensors: Sensors, reference, probes: Probes, 
     landing = wall_point + where(jnp.isfinite(t_exit), t_exit, 0.0)[:, None] * mirrored
     focusing = jax.lax.stop_gradient(focusing_ratio(shape, origins, wall_point, landing))
     counted = (probes.order > 0) | (focusing < FOCUSING_LIMIT) if source_quadrature else True
-    near = sensors.near_grid is not None and sensors.face_reach is not None
-    landing_xyz = xyz(landing)
-    with jax.numpy_dtype_promotion("standard"):
-        candidates = grid_candidates_xyz(sensors.near_grid if near else sensors.grid,
-                                         landing_xyz)
+    lookup = sensors.near_grid if sensors.near_grid is not None else sensors.grid
+    if lookup is None:  # no grids: every disc is a candidate
+        candidates = jnp.broadcast_to(jnp.arange(n), t_wall.shape + (n,))
+    else:
+        with jax.numpy_dtype_promotion("standard"):
+            candidates = grid_candidates_xyz(lookup, xyz(landing))
     index = jnp.maximum(candidates, 0)  # (P, K)
-    if near:
+    if sensors.near_grid is not None and sensors.face_reach is not None:
         widest = jnp.minimum(smoothing, sensors.face_reach[index])
         factor = where((probes.order > 0)[:, None], widest, 1.0)
     else:
