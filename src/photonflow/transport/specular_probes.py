@@ -82,32 +82,10 @@ def specular_probes(params, shape, sensors: Sensors, reference, probes: Probes, 
     landing = wall_point + where(jnp.isfinite(t_exit), t_exit, 0.0)[:, None] * mirrored
     focusing = jax.lax.stop_gradient(focusing_ratio(shape, origins, wall_point, landing))
     counted = (probes.order > 0) | (focusing < FOCUSING_LIMIT) if source_quadrature else True
-    lookup = sensors.near_grid if sensors.near_grid is not None else sensors.grid
-    if lookup is None:  # no grids: every disc is a candidate
-        candidates = jnp.broadcast_to(jnp.arange(n), t_wall.shape + (n,))
-    else:
-        with jax.numpy_dtype_promotion("standard"):
-            candidates = grid_candidates_xyz(lookup, xyz(landing))
-    index = jnp.maximum(candidates, 0)  # (P, K)
-    if sensors.near_grid is not None and sensors.face_reach is not None:
-        widest = jnp.minimum(smoothing, sensors.face_reach[index])
-        factor = where((probes.order > 0)[:, None], widest, 1.0)
-    else:
-        factor = jnp.ones(index.shape, t_wall.dtype)
-    origin = [c[:, None] for c in xyz(wall_point)]
-    direction = [c[:, None] for c in xyz(mirrored)]
-    normal = [sensors.normals[:, k][index] for k in range(3)]
-    centre = [sensors.positions[:, k][index] for k in range(3)]
-    # where the mirrored ray crosses each candidate disc's plane, from its front
-    cos_in = -sum(d * m for d, m in zip(direction, normal, strict=True))
-    front = cos_in > 1e-6
-    t_plane = sum((o - c) * m for o, c, m in zip(origin, centre, normal, strict=True)) / where(
-        front, cos_in, 1.0)
-    offset2 = sum((o + t_plane * d - c) ** 2
-                  for o, d, c in zip(origin, direction, centre, strict=True))
-    reach = factor * sensors.radius[index]
-    counts = ((candidates >= 0) & front & (t_plane > 0) & (offset2 < reach * reach)
-              & (reaches_wall & counted)[:, None])
+    index, crossed, t_plane, cos_in, factor = _crossings(
+        sensors, wall_point, mirrored, landing, probes.order, smoothing
+    )
+    counts = crossed & (reaches_wall & counted)[:, None]
     t_plane = where(counts, t_plane, 0.0)  # finite attenuation (and gradient) elsewhere
     rate_total = interaction_rates(params)[3]
     detected = where(
@@ -122,6 +100,40 @@ def specular_probes(params, shape, sensors: Sensors, reference, probes: Probes, 
                + travel_time(t_plane, params))
     sums = _scatter_moments(detected, arrival, probes.order[:, None] * n + index, n_orders * n)
     return tuple(x.reshape(n_orders, n) for x in sums)
+
+
+def _crossings(sensors: Sensors, wall_point, mirrored, landing, order, smoothing):
+    """The candidate discs (P, K) of mirrored rays leaving ``wall_point`` (P, 3) m along
+    ``mirrored`` and ending at ``landing`` (the discs near it), and where each ray
+    crosses each disc's plane: (index, crossed from the front within the widened
+    radius, distance t m, cos of incidence, widening factor), all (P, K)."""
+    n = sensors.positions.shape[0]
+    lookup = sensors.near_grid if sensors.near_grid is not None else sensors.grid
+    if lookup is None:  # no grids: every disc is a candidate
+        candidates = jnp.broadcast_to(jnp.arange(n), order.shape + (n,))
+    else:
+        with jax.numpy_dtype_promotion("standard"):
+            candidates = grid_candidates_xyz(lookup, xyz(landing))
+    index = jnp.maximum(candidates, 0)  # (P, K)
+    if sensors.near_grid is not None and sensors.face_reach is not None:
+        widest = jnp.minimum(smoothing, sensors.face_reach[index])
+        factor = where((order > 0)[:, None], widest, 1.0)
+    else:
+        factor = jnp.ones(index.shape, wall_point.dtype)
+    origin = [c[:, None] for c in xyz(wall_point)]
+    direction = [c[:, None] for c in xyz(mirrored)]
+    normal = [sensors.normals[:, k][index] for k in range(3)]
+    centre = [sensors.positions[:, k][index] for k in range(3)]
+    # where the mirrored ray crosses each candidate disc's plane, from its front
+    cos_in = -sum(d * m for d, m in zip(direction, normal, strict=True))
+    front = cos_in > 1e-6
+    t_plane = sum((o - c) * m for o, c, m in zip(origin, centre, normal, strict=True)) / where(
+        front, cos_in, 1.0)
+    offset2 = sum((o + t_plane * d - c) ** 2
+                  for o, d, c in zip(origin, direction, centre, strict=True))
+    reach = factor * sensors.radius[index]
+    crossed = (candidates >= 0) & front & (t_plane > 0) & (offset2 < reach * reach)
+    return index, crossed, t_plane, cos_in, factor
 
 
 def _scatter_moments(detected, arrival, slot, size):
