@@ -14,6 +14,7 @@ from weakref import WeakKeyDictionary
 import jax
 import numpy as np
 
+from ..generator.directions import perpendicular_basis
 from ..numerics import default_float_dtype, strict_array
 from ..pytree import pytree_dataclass
 from .detector import Detector
@@ -123,13 +124,7 @@ def face_reach_for(detector: Detector, steps: int = 9, azimuths: int = 16) -> np
     positions = np.asarray(detector.sensor_positions, float)
     normals = np.asarray(detector.sensor_normals, float)
     radius = np.asarray(detector.sensor_radius, float) * np.ones(len(positions))
-    # Duff et al.'s branch-free basis (``solid_angle.plane_basis``), in numpy: no eager
-    # JAX programs at detector set-up
-    sign = np.where(normals[:, 2] >= 0, 1.0, -1.0)
-    a = -1.0 / (sign + normals[:, 2])
-    b = normals[:, 0] * normals[:, 1] * a
-    u = np.stack([1.0 + sign * normals[:, 0] ** 2 * a, sign * b, -sign * normals[:, 0]], -1)
-    v = np.stack([b, sign + normals[:, 1] ** 2 * a, -normals[:, 1]], -1)
+    u, v = perpendicular_basis(normals)  # numpy: no eager JAX programs at set-up
     angle = np.linspace(0.0, 2.0 * np.pi, azimuths, endpoint=False)
     rim = np.cos(angle)[:, None, None] * u + np.sin(angle)[:, None, None] * v  # (A, N, 3)
     reach = np.ones(len(positions))

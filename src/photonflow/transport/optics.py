@@ -94,15 +94,11 @@ def check_config(config: TransportConfig) -> TransportConfig:
     def bad(name, value, rule):
         return ConfigError(f"config.{name} = {format_value(value)}: {rule}")
 
-    for name in ("n_bounces", "batch_size"):
+    for name, minimum in (("n_bounces", 0), ("batch_size", 1), ("n_rays", 1),
+                          ("specular_probes", 1)):
         value = getattr(config, name)
-        minimum = 0 if name == "n_bounces" else 1
         if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < minimum:
             raise bad(name, value, f"must be an integer >= {minimum}")
-    for name in ("n_rays", "specular_probes"):
-        value = getattr(config, name)
-        if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < 1:
-            raise bad(name, value, "must be an integer >= 1")
     smoothing = float(config.specular_smoothing)
     if not 1.0 <= smoothing <= WIDEST_DISC:
         raise bad("specular_smoothing", config.specular_smoothing,
