@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ConfigError, format_value
+from ..lbfgs import lbfgs_step
 from .objective import CalibrationProblem
 
 
@@ -171,44 +172,25 @@ class LBFGS:
     def init(self, problem: CalibrationProblem, theta: dict) -> dict[str, Any]:
         """State: the loss and flat gradient at ``theta`` and the memory pairs."""
         value, gradient = problem.value_and_grad(theta)
-        return {"value": value, "gradient": _flat(problem, gradient), "pairs": []}
+        return {"value": value, "gradient": _flat(problem, gradient), "pairs": ()}
 
     def update(self, problem: CalibrationProblem, theta: dict, state: dict):
-        """One L-BFGS step (two-loop recursion) with an Armijo backtracking search."""
-        gradient, pairs = state["gradient"], state["pairs"]
-        direction = -gradient.copy()
-        alphas = []
-        for s, y in reversed(pairs):
-            alpha = s @ direction / (y @ s)
-            direction -= alpha * y
-            alphas.append(alpha)
-        if pairs:
-            s, y = pairs[-1]
-            direction *= (s @ y) / (y @ y)
-        else:
-            direction /= max(1.0, float(np.linalg.norm(gradient)))
-        for (s, y), alpha in zip(pairs, reversed(alphas), strict=True):
-            beta = y @ direction / (y @ s)
-            direction += (alpha - beta) * s
-        x0 = _flat(problem, theta)
-        slope = float(gradient @ direction)
-        if slope >= 0:
-            direction, slope = -gradient, -float(gradient @ gradient)
+        """One L-BFGS step with an Armijo backtracking search (``lbfgs.lbfgs_step``)."""
         dtype = _dtype(theta)
-        scale = 1.0
-        for _ in range(self.max_halvings):
-            x1 = x0 + scale * direction
-            candidate = _unflat(problem, x1, dtype)
-            value, new_gradient = problem.value_and_grad(candidate)
-            if np.isfinite(value) and value <= state["value"] + 1e-4 * scale * slope:
-                new_gradient = _flat(problem, new_gradient)
-                s, y = x1 - x0, new_gradient - gradient
-                pairs = (pairs + [(s, y)])[-self.memory:] if s @ y > 1e-12 else pairs
-                new_state = {"value": value, "gradient": new_gradient, "pairs": pairs}
-                step = Step(value, state["value"] - value, float(np.max(np.abs(s), initial=0.0)))
-                return candidate, new_state, step
-            scale *= 0.5
-        return theta, state, Step(state["value"], 0.0, 0.0)
+
+        def value_and_grad(x):
+            value, gradient = problem.value_and_grad(_unflat(problem, x, dtype))
+            return value, _flat(problem, gradient)
+
+        x0 = _flat(problem, theta)
+        step = lbfgs_step(value_and_grad, x0, state["value"], state["gradient"],
+                          state["pairs"], self.memory, self.max_halvings)
+        if not step.accepted:
+            return theta, state, Step(state["value"], 0.0, 0.0)
+        new_state = {"value": step.value, "gradient": step.gradient, "pairs": step.pairs}
+        size = float(np.max(np.abs(step.point - x0), initial=0.0))
+        return (_unflat(problem, step.point, dtype), new_state,
+                Step(step.value, state["value"] - step.value, size))
 
 
 @dataclasses.dataclass(frozen=True)

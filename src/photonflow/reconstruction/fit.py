@@ -8,7 +8,8 @@ charge + first-hit-time likelihood with dark noise (``likelihood.dense_sensor_nl
 the expected response of the track (``expected_function``), in the free coordinates of
 ``coordinates`` (the vertex stays inside the detector by the map). Two minimisers:
 
-- ``method="gradient"``: L-BFGS (optax, zoom line search) on exact gradients;
+- ``method="gradient"``: L-BFGS (``photonflow.lbfgs``: an Armijo line search driven from
+  the host over one jitted value-and-gradient program) on exact gradients;
 - ``method="minuit"``: MIGRAD (iminuit) with numerical derivatives, errors by HESSE:
   the conventional fit of the same likelihood from the same starts.
 
@@ -27,7 +28,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import functools
 import math
 import time as clock
 from weakref import WeakKeyDictionary
@@ -35,13 +35,13 @@ from weakref import WeakKeyDictionary
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 from ..constants import SPEED_OF_LIGHT
 from ..emission import emission_model
 from ..errors import ConfigError
 from ..generator.track import Track
 from ..geometry.sensor_arrays import sensors_for
+from ..lbfgs import lbfgs_step
 from ..likelihood import check_overdispersion, dark_expectation, dense_sensor_nll, hit_arrays
 from ..numerics import default_float_dtype
 from ..transport.expected import expected_function
@@ -205,14 +205,13 @@ def event_problem(event, n_sensors: int) -> str | None:
 
 @dataclasses.dataclass(frozen=True)
 class _Functions:
-    """The jitted pieces of one (detector, dtype, config): the likelihood of a track,
-    one L-BFGS step in free coordinates, and the Hessian in local coordinates."""
+    """The jitted pieces of one (detector, dtype, config): the likelihood of a track and
+    its gradient in free coordinates, and the Hessian in local coordinates."""
 
     value: object
-    step: object
+    value_and_grad: object
     hessian: object
     total_charge: object
-    solver: object
     window: tuple[float, float]
     emission: object
     sensors: object
@@ -272,18 +271,6 @@ def _build_functions(detector, dtype, config: TransportConfig,
     def free_nll(free, frame, reference, data, time_weight=1.0):
         return track_nll(track_from_free(frame, free), reference, data, time_weight)
 
-    solver = optax.lbfgs(memory_size=10)
-
-    @jax.jit
-    def step(free, state, frame, reference, data, time_weight):
-        objective = functools.partial(free_nll, frame=frame, reference=reference, data=data,
-                                      time_weight=time_weight)
-        value, gradient = optax.value_and_grad_from_state(objective)(free, state=state)
-        with jax.numpy_dtype_promotion("standard"):  # optax mixes int and float
-            updates, state = solver.update(gradient, state, free, value=value,
-                                           grad=gradient, value_fn=objective)
-        return optax.apply_updates(free, updates), state, value, gradient
-
     @jax.jit
     def hessian(local, frame, reference, data):
         gradient = jax.grad(lambda y: track_nll(track_from_local(frame, y), reference, data))
@@ -296,9 +283,9 @@ def _build_functions(detector, dtype, config: TransportConfig,
                                arrays=data.sensors).charge)
 
     medium = detector_medium(detector)
-    return _Functions(value=jax.jit(free_nll), step=step,
-                      hessian=hessian, total_charge=total_charge, solver=solver,
-                      window=window,
+    return _Functions(value=jax.jit(free_nll),
+                      value_and_grad=jax.jit(jax.value_and_grad(free_nll)),
+                      hessian=hessian, total_charge=total_charge, window=window,
                       emission=lambda particle: emission_model(particle, medium, dtype,
                                                                config.emission_model),
                       sensors=sensors_for(detector, dtype))
@@ -385,12 +372,6 @@ def _dark_total(detector, data, functions) -> float:
     return float(detector.n_sensors * dark_expectation(data.params, functions.window))
 
 
-def _strong(tree):
-    """``tree`` without weak types (the optimiser's state after a step has none: the
-    same types keep the jitted step from compiling twice)."""
-    return jax.tree.map(lambda x: jnp.array(x, dtype=jnp.asarray(x).dtype), tree)
-
-
 def _cast_track(track: Track, dtype) -> Track:
     return jax.tree.map(lambda x: jnp.asarray(x, dtype), track)
 
@@ -421,32 +402,44 @@ def _minimise_gradient(functions, detector, model, data, start, settings) -> Rec
         frame = fit_frame(detector.shape, reference.direction, model.energy_range,
                           start.particle, settings.margin, dtype)
         fixed = _cast_track(reference, dtype)
-        free = free_from_track(frame, fixed)
-        state = _strong(functions.solver.init(free))
-        history = []
-        converged = False
+        weight = jnp.asarray(float(use_time), dtype)
+
+        def value_and_grad(x, frame=frame, fixed=fixed, weight=weight):
+            value, gradient = functions.value_and_grad(jnp.asarray(x, dtype), frame, fixed,
+                                                       data, weight)
+            return float(value), np.asarray(gradient, np.float64)
+
+        free = np.asarray(free_from_track(frame, fixed), np.float64)
+        value, gradient = value_and_grad(free)
+        first = value
+        evaluations += 1
+        pairs, history, converged = (), [], False
         for _ in range(settings.max_iterations):
-            stepped, state, value_, gradient = functions.step(
-                free, state, frame, fixed, data, jnp.asarray(float(use_time), dtype))
-            value = float(value_)
-            iterations += 1
-            evaluations += 1 + int(optax.tree_utils.tree_get(state, "num_linesearch_steps"))
             if not math.isfinite(value):
                 return _failure("the likelihood is not finite", start, iterations)
-            if not np.all(np.isfinite(np.asarray(gradient))):
+            if not np.all(np.isfinite(gradient)):
                 return _failure("the gradient is not finite", start, iterations)
-            if not np.all(np.isfinite(np.asarray(stepped))):
-                # the line search ran off (no finite step): keep the last point and stop
-                # here, not converged
-                converged = False
+            step = lbfgs_step(value_and_grad, free, value, gradient, pairs)
+            iterations += 1
+            evaluations += step.evaluations
+            if not step.accepted and pairs:  # once more along the steepest descent
+                pairs = ()
+                continue
+            if not step.accepted:
+                # not even a steepest-descent step lowers the likelihood (within its float
+                # precision): a minimum if the stage's steps so far (the last ``patience``
+                # of them) lowered it by little (a refresh starts at the minimum before)
+                history.append(value)
+                converged = _stalled([first, *history], settings, at_least=1)
                 break
-            free = stepped
+            free, value, gradient, pairs = step.point, step.value, step.gradient, step.pairs
+            if not np.all(np.isfinite(gradient)):
+                return _failure("the gradient is not finite", start, iterations)
             history.append(value)
-            if len(history) > settings.patience and all(
-                    history[-k - 1] - history[-k] < settings.tolerance
-                    for k in range(1, settings.patience + 1)):
+            if _stalled(history, settings):
                 converged = True
                 break
+        free = jnp.asarray(free, dtype)
         fitted = _concrete(track_from_free(frame, free))
         moved = _moved(reference, fitted, settings)
         reference = fitted
@@ -463,6 +456,15 @@ def _minimise_gradient(functions, detector, model, data, start, settings) -> Rec
                       energy=float(reference.energy), covariance=covariance, nll=value,
                       particle=start.particle, converged=converged, iterations=iterations,
                       seconds=0.0, method="gradient", evaluations=evaluations)
+
+
+def _stalled(history, settings, at_least: int | None = None) -> bool:
+    """Whether each of the last ``settings.patience`` steps of the fit (the changes
+    between the values of ``history``) lowered the negative log-likelihood by less than
+    ``settings.tolerance``; with ``at_least``, fewer steps (but that many) suffice."""
+    steps = min(settings.patience, len(history) - 1) if at_least else settings.patience
+    return len(history) - 1 >= max(steps, at_least or 1) and all(
+        history[-k - 1] - history[-k] < settings.tolerance for k in range(1, steps + 1))
 
 
 def _covariance(functions, detector, model, data, track) -> np.ndarray:
