@@ -6,7 +6,7 @@ Written here rather than taken from ``optax.lbfgs`` because that runs its zoom l
 search inside the jitted step, which traces the objective's value and gradient three
 times (at the start, at the first trial point and in the search loop): the compiled
 step holds three copies of the gradient program, and compiling it takes ~3 times as
-long (a track likelihood of the toy detector: 31 s against ~10 s). Here the objective
+long (a track likelihood of the toy detector: 31 s against 13 s). Here the objective
 is compiled once, and each trial point costs one call of it. Used by the calibration's
 ``LBFGS`` step rule and by the reconstruction's gradient fit.
 """
