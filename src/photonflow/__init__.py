@@ -41,12 +41,12 @@ configure_from_environment()  # persistent compilation cache (photonflow.compila
 _LAZY = {"CalibrationResult": "calibration", "calibrate": "calibration",
          "load_params": "calibration", "EventFile": "io", "read_events": "io",
          "write_events": "io", "RecoResult": "reconstruction",
-         "reconstruct": "reconstruction"}
+         "RecoSettings": "reconstruction", "reconstruct": "reconstruction"}
 
 if TYPE_CHECKING:  # what static tools (type checkers, the API reference) see of them
     from .calibration import CalibrationResult, calibrate, load_params
     from .io import EventFile, read_events, write_events
-    from .reconstruction import RecoResult, reconstruct
+    from .reconstruction import RecoResult, RecoSettings, reconstruct
 
 
 __getattr__, __dir__ = lazy_names(__name__, _LAZY)
@@ -79,6 +79,7 @@ __all__ = [
     "Photons",
     "Prediction",
     "RecoResult",
+    "RecoSettings",
     "SensorFileError",
     "Sphere",
     "Track",
