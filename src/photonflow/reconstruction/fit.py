@@ -413,12 +413,12 @@ def _minimise_gradient(functions, detector, model, data, start, settings) -> Rec
         value, gradient = value_and_grad(free)
         first = value
         evaluations += 1
+        if not math.isfinite(value):
+            return _failure("the likelihood is not finite", start, iterations)
+        if not np.all(np.isfinite(gradient)):
+            return _failure("the gradient is not finite", start, iterations)
         pairs, history, converged = (), [], False
         for _ in range(settings.max_iterations):
-            if not math.isfinite(value):
-                return _failure("the likelihood is not finite", start, iterations)
-            if not np.all(np.isfinite(gradient)):
-                return _failure("the gradient is not finite", start, iterations)
             step = lbfgs_step(value_and_grad, free, value, gradient, pairs)
             iterations += 1
             evaluations += step.evaluations
@@ -430,13 +430,14 @@ def _minimise_gradient(functions, detector, model, data, start, settings) -> Rec
                 # precision): a minimum if the stage's steps so far (the last ``patience``
                 # of them) lowered it by little (a refresh starts at the minimum before)
                 history.append(value)
-                converged = _stalled([first, *history], settings, at_least=1)
+                converged = _stalled([first, *history], min(settings.patience, len(history)),
+                                     settings.tolerance)
                 break
             free, value, gradient, pairs = step.point, step.value, step.gradient, step.pairs
             if not np.all(np.isfinite(gradient)):
                 return _failure("the gradient is not finite", start, iterations)
             history.append(value)
-            if _stalled(history, settings):
+            if _stalled(history, settings.patience, settings.tolerance):
                 converged = True
                 break
         free = jnp.asarray(free, dtype)
@@ -458,13 +459,11 @@ def _minimise_gradient(functions, detector, model, data, start, settings) -> Rec
                       seconds=0.0, method="gradient", evaluations=evaluations)
 
 
-def _stalled(history, settings, at_least: int | None = None) -> bool:
-    """Whether each of the last ``settings.patience`` steps of the fit (the changes
-    between the values of ``history``) lowered the negative log-likelihood by less than
-    ``settings.tolerance``; with ``at_least``, fewer steps (but that many) suffice."""
-    steps = min(settings.patience, len(history) - 1) if at_least else settings.patience
-    return len(history) - 1 >= max(steps, at_least or 1) and all(
-        history[-k - 1] - history[-k] < settings.tolerance for k in range(1, steps + 1))
+def _stalled(values, patience: int, tolerance: float) -> bool:
+    """Whether each of the last ``patience`` steps of a fit (the changes between its
+    ``values`` of the negative log-likelihood) lowered it by less than ``tolerance``."""
+    return len(values) > patience and all(
+        values[-k - 1] - values[-k] < tolerance for k in range(1, patience + 1))
 
 
 def _covariance(functions, detector, model, data, track) -> np.ndarray:
