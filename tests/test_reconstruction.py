@@ -206,19 +206,50 @@ def test_a_fit_without_a_positive_definite_hessian_is_not_converged(toy, sampled
                                                                     monkeypatch):
     """A fit that stops where the Hessian is not positive definite (a saddle: one SK
     muon fitted to 2.8 GeV did) is reported, but not as converged."""
-    from photonflow.reconstruction import fit
+    from photonflow.reconstruction import minimisers
 
     detector, params = toy
     short = RecoSettings(fits=1, scan_directions=0)
     good = reconstruct(detector, params, sampled_event, "mu-", config=CONFIG, settings=short,
                        start=TRUTH)
     assert good.converged and np.all(np.isfinite(good.covariance))
-    monkeypatch.setattr(fit, "_covariance",
+    monkeypatch.setattr(minimisers, "_covariance",
                         lambda *args: np.full((7, 7), np.nan))
     saddle = reconstruct(detector, params, sampled_event, "mu-", config=CONFIG,
                          settings=short, start=TRUTH)
     assert saddle.failure is None and not saddle.converged
     assert saddle.nll == pytest.approx(good.nll)
+
+
+@pytest.mark.parametrize("restarts", [0, 2])
+def test_a_fit_that_did_not_converge_is_followed_by_the_next_start(toy, sampled_event,
+                                                                  monkeypatch, restarts):
+    """With one fit and its first start's fit not converged (lower nll all the same), the
+    next likeliest start is fitted (up to ``restarts`` of them) and the converged fit is
+    kept; with no restarts the unconverged fit is reported, as not converged. The
+    minimiser is replaced by one that records its starts (the choice is under test)."""
+    from photonflow.reconstruction import fit
+
+    detector, params = toy
+    starts = []
+
+    def minimise(functions, detector, model, data, start, settings):
+        starts.append(start)
+        result = fit.RecoResult(position=np.asarray(start.position), time=start.time,
+                                direction=np.asarray(start.direction), energy=start.energy,
+                                covariance=np.eye(7), nll=100.0 - len(starts),
+                                particle=start.particle, converged=len(starts) > 1,
+                                iterations=1, seconds=0.0)
+        return result
+
+    monkeypatch.setattr(fit, "minimise_gradient", minimise)
+    settings = RecoSettings(fits=1, scan_directions=2, restarts=restarts)
+    result = reconstruct(detector, params, sampled_event, "mu-", config=CONFIG,
+                         settings=settings)
+    assert len(starts) == min(1 + restarts, 2)
+    assert result.converged == (restarts > 0)
+    np.testing.assert_array_equal(result.position, starts[-1].position)
+    assert result.nll == 100.0 - len(starts)
 
 
 @pytest.mark.parametrize("value", [-0.01, 0.51, float("nan")])
@@ -247,7 +278,7 @@ def test_the_fit_is_seeded_with_the_configured_emission_model(toy, sampled_event
         seen.update(model=model, emission=data.emission)
         raise Captured
 
-    monkeypatch.setattr(fit, "_minimise_gradient", capture)
+    monkeypatch.setattr(fit, "minimise_gradient", capture)
     with pytest.raises(Captured):
         fit._fit_particle(functions, detector, params, data, TRUTH, "mu-", "gradient", FAST)
     assert isinstance(seen["model"], SirenEmission) and seen["emission"] is seen["model"]

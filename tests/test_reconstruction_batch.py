@@ -29,7 +29,8 @@ from photonflow.reconstruction.batch import reconstruct_events
 from photonflow.reconstruction.evaluation import summarize
 
 #: Short fits (the file's content and the job's bookkeeping are under test, not the fits).
-FAST = ["--bounces", "0", "--fits", "1", "--scan-directions", "0", "--max-iterations", "3"]
+FAST = ["--bounces", "0", "--fits", "1", "--restarts", "0", "--scan-directions", "0",
+        "--max-iterations", "3"]
 CONFIG = pf.TransportConfig(n_bounces=0)
 
 

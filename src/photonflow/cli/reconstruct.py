@@ -40,6 +40,9 @@ def reconstruct(
              f" {MAX_BOUNCES}.")] = 2,
     fits: Annotated[int, typer.Option(
         help="Starts fitted per hypothesis (the likeliest).")] = _DEFAULTS.fits,
+    restarts: Annotated[int, typer.Option(
+        help="Further starts fitted, one after another, while no fit has converged.")]
+    = _DEFAULTS.restarts,
     scan_directions: Annotated[int, typer.Option(
         "--scan-directions", help="Starting directions spread over the sphere, besides"
                                   " the seeded one and its opposite.")]
@@ -79,6 +82,7 @@ def reconstruct(
     check_batch_options(particle, method)
     check_count("--bounces", bounces, 0, MAX_BOUNCES)
     check_count("--fits", fits, 1, 100)
+    check_count("--restarts", restarts, 0, 100)
     check_count("--scan-directions", scan_directions, 0, 1000)
     check_count("--max-iterations", max_iterations, 1, 100_000)
     if not 0.0 <= overdispersion <= MAX_OVERDISPERSION:
@@ -105,11 +109,12 @@ def reconstruct(
             except ConfigError as error:
                 raise ConfigError(f"--params = {str(params)!r}: not for the detector of"
                                   f" {events.name} ({error})") from None
-        settings = RecoSettings(fits=fits, scan_directions=scan_directions,
+        settings = RecoSettings(fits=fits, restarts=restarts,
+                                scan_directions=scan_directions,
                                 max_iterations=max_iterations,
                                 overdispersion=overdispersion)
         run = {"events": _file_identity(event_file), "particle": particle, "method": method,
-               "params": params_id, "bounces": bounces, "fits": fits,
+               "params": params_id, "bounces": bounces, "fits": fits, "restarts": restarts,
                "scan_directions": scan_directions, "max_iterations": max_iterations,
                "overdispersion": settings.overdispersion}
         writer = RecoWriter(out, detector, run, events_file=str(events.resolve()),

@@ -6,7 +6,8 @@ particle outruns its light), evaluates the likelihood at each and fits the best
 ``RecoSettings.fits`` of them; the best minimum is kept. The likelihood is the full
 charge + first-hit-time likelihood with dark noise (``likelihood.dense_sensor_nll``) of
 the expected response of the track (``expected_function``), in the free coordinates of
-``coordinates`` (the vertex stays inside the detector by the map). Two minimisers:
+``coordinates`` (the vertex stays inside the detector by the map). Two minimisers
+(``minimisers``):
 
 - ``method="gradient"``: L-BFGS (``photonflow.lbfgs``: an Armijo line search driven from
   the host over one jitted value-and-gradient program) on exact gradients;
@@ -41,21 +42,20 @@ from ..emission import emission_model
 from ..errors import ConfigError
 from ..generator.track import Track
 from ..geometry.sensor_arrays import sensors_for
-from ..lbfgs import lbfgs_step
 from ..likelihood import check_overdispersion, dark_expectation, dense_sensor_nll, hit_arrays
 from ..numerics import default_float_dtype
 from ..transport.expected import expected_function
-from ..transport.optics import TransportConfig, orthonormal_basis
+from ..transport.optics import TransportConfig
 from ..transport.tracks import detector_medium
 from .coordinates import (
     fit_frame,
     free_from_track,
     free_from_vertex,
-    local_from_track,
     track_from_free,
     track_from_local,
     vertex_from_free,
 )
+from .minimisers import cast_track, minimise_gradient, minimise_minuit
 from .result import RecoResult
 from .seeding import energy_from_charge, point_source_seed
 
@@ -90,6 +90,9 @@ class RecoSettings:
 
     Attributes:
         fits: how many of the starts (the likeliest) are fitted.
+        restarts: further starts, the next likeliest, fitted one after another while
+            none of the fits has converged (a fit that ran off, to a saddle or to the
+            iteration limit, is followed by a fit from another start).
         scan_directions: starts in directions spread over the sphere, from the
             point-source vertex and from the detector's centre, besides the seeded
             direction and its opposite.
@@ -112,6 +115,7 @@ class RecoSettings:
     """
 
     fits: int = 2
+    restarts: int = 2
     scan_directions: int = 8
     max_iterations: int = 200
     tolerance: float = 1e-2
@@ -319,7 +323,7 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
     began = clock.perf_counter()
     model = functions.emission(particle)  # the configured model (spline or SIREN)
     data = dataclasses.replace(data, emission=model)
-    minimise = _minimise_gradient if method == "gradient" else _minimise_minuit
+    minimise = minimise_gradient if method == "gradient" else minimise_minuit
     if isinstance(seed, Track):
         fit = minimise(functions, detector, model, data, seed, settings)
         return dataclasses.replace(fit, seconds=clock.perf_counter() - began)
@@ -332,7 +336,7 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
     probe = Track(particle, frame_inside(frame, vertex), direction, reference_energy,
                   float(seed.time))
     observed = float(jnp.sum(data.charge)) - _dark_total(detector, data, functions)
-    predicted = float(functions.total_charge(_cast_track(probe, dtype), data))
+    predicted = float(functions.total_charge(cast_track(probe, dtype), data))
     energy = energy_from_charge(model, observed, predicted, reference_energy)
     extent = float(model.at(energy).extent)
     candidates = [(axis, share) for axis in (direction, -direction) for share in START_SHARES]
@@ -346,17 +350,21 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
         offset = share * extent
         start = Track(particle, frame_inside(frame, origin - offset * axis), axis, energy,
                       float(seed.time) - offset / SPEED_OF_LIGHT)
-        cast = _cast_track(start, dtype)
+        cast = cast_track(start, dtype)
         turned = fit_frame(detector.shape, axis, model.energy_range, particle,
                            settings.margin, dtype)
         value = float(functions.value(free_from_track(turned, cast), turned, cast, data))
         starts.append((value, start))
     starts.sort(key=lambda item: item[0] if math.isfinite(item[0]) else math.inf)
     fits = []
-    for _, start in starts[: settings.fits]:
+    for rank, (_, start) in enumerate(starts):
+        if rank >= settings.fits and (rank >= settings.fits + settings.restarts
+                                      or any(f.converged for f in fits)):
+            break
         fits.append(minimise(functions, detector, model, data, start, settings))
     good = [f for f in fits if f.failure is None]
-    best = min(good, key=lambda f: f.nll) if good else fits[0]
+    # a converged fit before any that stopped short of a minimum, then the likeliest
+    best = min(good, key=lambda f: (not f.converged, f.nll)) if good else fits[0]
     return dataclasses.replace(best, seconds=clock.perf_counter() - began,
                                iterations=sum(f.iterations for f in fits),
                                evaluations=sum(f.evaluations for f in fits) + len(starts) + 1)
@@ -370,189 +378,3 @@ def frame_inside(frame, vertex) -> np.ndarray:
 def _dark_total(detector, data, functions) -> float:
     """Expected dark-noise charge of the whole detector in the readout window, p.e."""
     return float(detector.n_sensors * dark_expectation(data.params, functions.window))
-
-
-def _cast_track(track: Track, dtype) -> Track:
-    return jax.tree.map(lambda x: jnp.asarray(x, dtype), track)
-
-
-def _moved(a: Track, b: Track, settings) -> bool:
-    """Whether track ``b`` is further from ``a`` than the refresh thresholds."""
-    distance = float(np.linalg.norm(np.asarray(a.position) - np.asarray(b.position)))
-    cosine = float(np.clip(np.dot(np.asarray(a.direction), np.asarray(b.direction)), -1, 1))
-    return distance > settings.refresh_distance or \
-        math.degrees(math.acos(cosine)) > settings.refresh_angle
-
-
-def _concrete(track: Track) -> Track:
-    """A checked, float64 copy of a traced or device track."""
-    return Track(track.particle, np.asarray(track.position, np.float64),
-                 np.asarray(track.direction, np.float64) / np.linalg.norm(
-                     np.asarray(track.direction, np.float64)),
-                 float(track.energy), float(track.time))
-
-
-def _minimise_gradient(functions, detector, model, data, start, settings) -> RecoResult:
-    """L-BFGS from ``start``, with reference refreshes (module docstring)."""
-    dtype = data.charge.dtype
-    reference, iterations, evaluations, converged = start, 0, 0, False
-    value = math.nan
-    for stage in range(settings.refreshes + 2):
-        use_time = stage > 0  # a charge-only stage first: its landscape is smoother
-        frame = fit_frame(detector.shape, reference.direction, model.energy_range,
-                          start.particle, settings.margin, dtype)
-        fixed = _cast_track(reference, dtype)
-        weight = jnp.asarray(float(use_time), dtype)
-
-        def value_and_grad(x, frame=frame, fixed=fixed, weight=weight):
-            value, gradient = functions.value_and_grad(jnp.asarray(x, dtype), frame, fixed,
-                                                       data, weight)
-            return float(value), np.asarray(gradient, np.float64)
-
-        free = np.asarray(free_from_track(frame, fixed), np.float64)
-        value, gradient = value_and_grad(free)
-        first = value
-        evaluations += 1
-        if not math.isfinite(value):
-            return _failure("the likelihood is not finite", start, iterations)
-        if not np.all(np.isfinite(gradient)):
-            return _failure("the gradient is not finite", start, iterations)
-        pairs, history, converged = (), [], False
-        for _ in range(settings.max_iterations):
-            step = lbfgs_step(value_and_grad, free, value, gradient, pairs)
-            iterations += 1
-            evaluations += step.evaluations
-            if not step.accepted and pairs:  # once more along the steepest descent
-                pairs = ()
-                continue
-            if not step.accepted:
-                # not even a steepest-descent step lowers the likelihood (within its float
-                # precision): a minimum if the stage's steps so far (the last ``patience``
-                # of them) lowered it by little (a refresh starts at the minimum before)
-                history.append(value)
-                converged = _stalled([first, *history], min(settings.patience, len(history)),
-                                     settings.tolerance)
-                break
-            free, value, gradient, pairs = step.point, step.value, step.gradient, step.pairs
-            if not np.all(np.isfinite(gradient)):
-                return _failure("the gradient is not finite", start, iterations)
-            history.append(value)
-            if _stalled(history, settings.patience, settings.tolerance):
-                converged = True
-                break
-        free = jnp.asarray(free, dtype)
-        fitted = _concrete(track_from_free(frame, free))
-        moved = _moved(reference, fitted, settings)
-        reference = fitted
-        if use_time and not moved:
-            break
-    value = float(functions.value(free_from_track(frame, _cast_track(reference, dtype)), frame,
-                                  _cast_track(reference, dtype), data))
-    covariance = _covariance(functions, detector, model, data, reference)
-    # a point whose Hessian is not positive definite is not a minimum (a saddle, or a
-    # ridge the tolerance stopped on): never reported as converged
-    converged = converged and bool(np.all(np.isfinite(covariance)))
-    return RecoResult(position=np.asarray(reference.position), time=float(reference.time),
-                      direction=np.asarray(reference.direction),
-                      energy=float(reference.energy), covariance=covariance, nll=value,
-                      particle=start.particle, converged=converged, iterations=iterations,
-                      seconds=0.0, method="gradient", evaluations=evaluations)
-
-
-def _stalled(values, patience: int, tolerance: float) -> bool:
-    """Whether each of the last ``patience`` steps of a fit (the changes between its
-    ``values`` of the negative log-likelihood) lowered it by less than ``tolerance``."""
-    return len(values) > patience and all(
-        values[-k - 1] - values[-k] < tolerance for k in range(1, patience + 1))
-
-
-def _covariance(functions, detector, model, data, track) -> np.ndarray:
-    """Inverse Hessian of the negative log-likelihood at ``track`` in ``LOCAL``
-    coordinates (NaN where the Hessian is not positive definite)."""
-    dtype = data.charge.dtype
-    frame = fit_frame(detector.shape, track.direction, model.energy_range, track.particle,
-                      0.0, dtype)
-    cast = _cast_track(track, dtype)
-    hessian = np.asarray(functions.hessian(local_from_track(cast, dtype), frame, cast, data),
-                         np.float64)
-    hessian = 0.5 * (hessian + hessian.T)
-    try:
-        np.linalg.cholesky(hessian)
-    except np.linalg.LinAlgError:
-        return np.full_like(hessian, np.nan)
-    return np.linalg.inv(hessian)
-
-
-def _failure(reason, start, iterations) -> RecoResult:
-    result = RecoResult.failed(reason, start.particle, "gradient", 0.0)
-    return dataclasses.replace(result, iterations=iterations)
-
-
-def _minimise_minuit(functions, detector, model, data, start, settings) -> RecoResult:
-    """MIGRAD (numerical derivatives) from ``start``, errors by HESSE, with the same
-    reference refreshes."""
-    from iminuit import Minuit
-
-    dtype = data.charge.dtype
-    reference, iterations, evaluations, converged = start, 0, 0, False
-    minuit = None
-    for _ in range(settings.refreshes + 1):
-        frame = fit_frame(detector.shape, reference.direction, model.energy_range,
-                          start.particle, settings.margin, dtype)
-        fixed = _cast_track(reference, dtype)
-
-        def objective(x, frame=frame, fixed=fixed):
-            return float(functions.value(jnp.asarray(x, dtype), frame, fixed, data))
-
-        free = np.asarray(free_from_track(frame, fixed), np.float64)
-        minuit = Minuit(objective, free, name=FREE_NAMES)
-        minuit.errordef = Minuit.LIKELIHOOD
-        minuit.errors = INITIAL_STEPS
-        minuit.migrad(ncall=settings.max_iterations * 20)
-        evaluations += minuit.nfcn
-        iterations += 1
-        converged = bool(minuit.valid)
-        if not math.isfinite(minuit.fval):
-            return _failure("the likelihood is not finite", start, evaluations)
-        fitted = _concrete(track_from_free(frame, jnp.asarray(np.asarray(minuit.values),
-                                                              dtype)))
-        moved = _moved(reference, fitted, settings)
-        reference = fitted
-        if not moved:
-            break
-    minuit.hesse()
-    evaluations += minuit.nfcn
-    covariance = _local_covariance(frame, np.asarray(minuit.values), reference,
-                                   np.asarray(minuit.covariance, np.float64), dtype)
-    converged = converged and bool(minuit.fmin.has_posdef_covar)
-    return RecoResult(position=np.asarray(reference.position), time=float(reference.time),
-                      direction=np.asarray(reference.direction),
-                      energy=float(reference.energy), covariance=covariance,
-                      nll=float(minuit.fval), particle=start.particle, converged=converged,
-                      iterations=iterations, seconds=0.0, method="minuit",
-                      evaluations=evaluations)
-
-
-#: Names of the free coordinates (``coordinates``), for MINUIT.
-FREE_NAMES = ("q1", "q2", "q3", "t", "a", "b", "eta")
-#: MINUIT's first step sizes in the free coordinates (about 10 cm at the centre of SK,
-#: 1 ns, 1 degree, a few % of the energy).
-INITIAL_STEPS = (0.01, 0.01, 0.01, 1.0, 0.02, 0.02, 0.05)
-
-
-def _local_covariance(frame, free, fitted: Track, covariance, dtype) -> np.ndarray:
-    """A covariance of the free coordinates at ``free`` as one in ``LOCAL`` coordinates
-    about the ``fitted`` track (the Jacobian of the coordinate change)."""
-    axis = jnp.asarray(fitted.direction, dtype)
-    first, second = orthonormal_basis(axis)  # the angles' basis of ``_covariance``
-
-    def local(x):
-        track = track_from_free(frame, x)
-        along = jnp.sum(track.direction * axis)
-        return jnp.concatenate([track.position, jnp.stack([
-            track.time, jnp.sum(track.direction * first) / along,
-            jnp.sum(track.direction * second) / along, jnp.log(track.energy)])])
-
-    jacobian = np.asarray(jax.jacfwd(local)(jnp.asarray(free, dtype)), np.float64)
-    return jacobian @ covariance @ jacobian.T
-

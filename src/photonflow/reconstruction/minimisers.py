@@ -1,0 +1,217 @@
+"""The two minimisers of ``reconstruct`` (``fit``), each from one start, with the
+reference refreshes of the module docstring of ``fit``:
+
+- ``minimise_gradient``: L-BFGS (``photonflow.lbfgs``) on exact gradients, the
+  covariance from the exact Hessian;
+- ``minimise_minuit``: MIGRAD with numerical derivatives, errors by HESSE.
+
+Both return a ``RecoResult`` (``converged`` only at a minimum with a positive-definite
+Hessian). Lengths m, times ns, energies MeV.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..generator.track import Track
+from ..lbfgs import lbfgs_step
+from ..transport.optics import orthonormal_basis
+from .coordinates import (
+    fit_frame,
+    free_from_track,
+    local_from_track,
+    track_from_free,
+)
+from .result import RecoResult
+
+
+def cast_track(track: Track, dtype) -> Track:
+    """``track`` with every float field as a JAX array of ``dtype``."""
+    return jax.tree.map(lambda x: jnp.asarray(x, dtype), track)
+
+
+def _moved(a: Track, b: Track, settings) -> bool:
+    """Whether track ``b`` is further from ``a`` than the refresh thresholds."""
+    distance = float(np.linalg.norm(np.asarray(a.position) - np.asarray(b.position)))
+    cosine = float(np.clip(np.dot(np.asarray(a.direction), np.asarray(b.direction)), -1, 1))
+    return distance > settings.refresh_distance or \
+        math.degrees(math.acos(cosine)) > settings.refresh_angle
+
+
+def _concrete(track: Track) -> Track:
+    """A checked, float64 copy of a traced or device track."""
+    return Track(track.particle, np.asarray(track.position, np.float64),
+                 np.asarray(track.direction, np.float64) / np.linalg.norm(
+                     np.asarray(track.direction, np.float64)),
+                 float(track.energy), float(track.time))
+
+
+def minimise_gradient(functions, detector, model, data, start, settings) -> RecoResult:
+    """L-BFGS from ``start``, with reference refreshes (module docstring)."""
+    dtype = data.charge.dtype
+    reference, iterations, evaluations, converged = start, 0, 0, False
+    value = math.nan
+    for stage in range(settings.refreshes + 2):
+        use_time = stage > 0  # a charge-only stage first: its landscape is smoother
+        frame = fit_frame(detector.shape, reference.direction, model.energy_range,
+                          start.particle, settings.margin, dtype)
+        fixed = cast_track(reference, dtype)
+        weight = jnp.asarray(float(use_time), dtype)
+
+        def value_and_grad(x, frame=frame, fixed=fixed, weight=weight):
+            value, gradient = functions.value_and_grad(jnp.asarray(x, dtype), frame, fixed,
+                                                       data, weight)
+            return float(value), np.asarray(gradient, np.float64)
+
+        free = np.asarray(free_from_track(frame, fixed), np.float64)
+        value, gradient = value_and_grad(free)
+        first = value
+        evaluations += 1
+        if not math.isfinite(value):
+            return _failure("the likelihood is not finite", start, iterations)
+        if not np.all(np.isfinite(gradient)):
+            return _failure("the gradient is not finite", start, iterations)
+        pairs, history, converged = (), [], False
+        for _ in range(settings.max_iterations):
+            step = lbfgs_step(value_and_grad, free, value, gradient, pairs)
+            iterations += 1
+            evaluations += step.evaluations
+            if not step.accepted and pairs:  # once more along the steepest descent
+                pairs = ()
+                continue
+            if not step.accepted:
+                # not even a steepest-descent step lowers the likelihood (within its float
+                # precision): a minimum if the stage's steps so far (the last ``patience``
+                # of them) lowered it by little (a refresh starts at the minimum before)
+                history.append(value)
+                converged = _stalled([first, *history], min(settings.patience, len(history)),
+                                     settings.tolerance)
+                break
+            free, value, gradient, pairs = step.point, step.value, step.gradient, step.pairs
+            if not np.all(np.isfinite(gradient)):
+                return _failure("the gradient is not finite", start, iterations)
+            history.append(value)
+            if _stalled(history, settings.patience, settings.tolerance):
+                converged = True
+                break
+        free = jnp.asarray(free, dtype)
+        fitted = _concrete(track_from_free(frame, free))
+        moved = _moved(reference, fitted, settings)
+        reference = fitted
+        if use_time and not moved:
+            break
+    value = float(functions.value(free_from_track(frame, cast_track(reference, dtype)), frame,
+                                  cast_track(reference, dtype), data))
+    covariance = _covariance(functions, detector, model, data, reference)
+    # a point whose Hessian is not positive definite is not a minimum (a saddle, or a
+    # ridge the tolerance stopped on): never reported as converged
+    converged = converged and bool(np.all(np.isfinite(covariance)))
+    return RecoResult(position=np.asarray(reference.position), time=float(reference.time),
+                      direction=np.asarray(reference.direction),
+                      energy=float(reference.energy), covariance=covariance, nll=value,
+                      particle=start.particle, converged=converged, iterations=iterations,
+                      seconds=0.0, method="gradient", evaluations=evaluations)
+
+
+def _stalled(values, patience: int, tolerance: float) -> bool:
+    """Whether each of the last ``patience`` steps of a fit (the changes between its
+    ``values`` of the negative log-likelihood) lowered it by less than ``tolerance``."""
+    return len(values) > patience and all(
+        values[-k - 1] - values[-k] < tolerance for k in range(1, patience + 1))
+
+
+def _covariance(functions, detector, model, data, track) -> np.ndarray:
+    """Inverse Hessian of the negative log-likelihood at ``track`` in ``LOCAL``
+    coordinates (NaN where the Hessian is not positive definite)."""
+    dtype = data.charge.dtype
+    frame = fit_frame(detector.shape, track.direction, model.energy_range, track.particle,
+                      0.0, dtype)
+    cast = cast_track(track, dtype)
+    hessian = np.asarray(functions.hessian(local_from_track(cast, dtype), frame, cast, data),
+                         np.float64)
+    hessian = 0.5 * (hessian + hessian.T)
+    try:
+        np.linalg.cholesky(hessian)
+    except np.linalg.LinAlgError:
+        return np.full_like(hessian, np.nan)
+    return np.linalg.inv(hessian)
+
+
+def _failure(reason, start, iterations) -> RecoResult:
+    result = RecoResult.failed(reason, start.particle, "gradient", 0.0)
+    return dataclasses.replace(result, iterations=iterations)
+
+
+def minimise_minuit(functions, detector, model, data, start, settings) -> RecoResult:
+    """MIGRAD (numerical derivatives) from ``start``, errors by HESSE, with the same
+    reference refreshes."""
+    from iminuit import Minuit
+
+    dtype = data.charge.dtype
+    reference, iterations, evaluations, converged = start, 0, 0, False
+    minuit = None
+    for _ in range(settings.refreshes + 1):
+        frame = fit_frame(detector.shape, reference.direction, model.energy_range,
+                          start.particle, settings.margin, dtype)
+        fixed = cast_track(reference, dtype)
+
+        def objective(x, frame=frame, fixed=fixed):
+            return float(functions.value(jnp.asarray(x, dtype), frame, fixed, data))
+
+        free = np.asarray(free_from_track(frame, fixed), np.float64)
+        minuit = Minuit(objective, free, name=FREE_NAMES)
+        minuit.errordef = Minuit.LIKELIHOOD
+        minuit.errors = INITIAL_STEPS
+        minuit.migrad(ncall=settings.max_iterations * 20)
+        evaluations += minuit.nfcn
+        iterations += 1
+        converged = bool(minuit.valid)
+        if not math.isfinite(minuit.fval):
+            return _failure("the likelihood is not finite", start, evaluations)
+        fitted = _concrete(track_from_free(frame, jnp.asarray(np.asarray(minuit.values),
+                                                              dtype)))
+        moved = _moved(reference, fitted, settings)
+        reference = fitted
+        if not moved:
+            break
+    minuit.hesse()
+    evaluations += minuit.nfcn
+    covariance = _local_covariance(frame, np.asarray(minuit.values), reference,
+                                   np.asarray(minuit.covariance, np.float64), dtype)
+    converged = converged and bool(minuit.fmin.has_posdef_covar)
+    return RecoResult(position=np.asarray(reference.position), time=float(reference.time),
+                      direction=np.asarray(reference.direction),
+                      energy=float(reference.energy), covariance=covariance,
+                      nll=float(minuit.fval), particle=start.particle, converged=converged,
+                      iterations=iterations, seconds=0.0, method="minuit",
+                      evaluations=evaluations)
+
+
+#: Names of the free coordinates (``coordinates``), for MINUIT.
+FREE_NAMES = ("q1", "q2", "q3", "t", "a", "b", "eta")
+#: MINUIT's first step sizes in the free coordinates (about 10 cm at the centre of SK,
+#: 1 ns, 1 degree, a few % of the energy).
+INITIAL_STEPS = (0.01, 0.01, 0.01, 1.0, 0.02, 0.02, 0.05)
+
+
+def _local_covariance(frame, free, fitted: Track, covariance, dtype) -> np.ndarray:
+    """A covariance of the free coordinates at ``free`` as one in ``LOCAL`` coordinates
+    about the ``fitted`` track (the Jacobian of the coordinate change)."""
+    axis = jnp.asarray(fitted.direction, dtype)
+    first, second = orthonormal_basis(axis)  # the angles' basis of ``_covariance``
+
+    def local(x):
+        track = track_from_free(frame, x)
+        along = jnp.sum(track.direction * axis)
+        return jnp.concatenate([track.position, jnp.stack([
+            track.time, jnp.sum(track.direction * first) / along,
+            jnp.sum(track.direction * second) / along, jnp.log(track.energy)])])
+
+    jacobian = np.asarray(jax.jacfwd(local)(jnp.asarray(free, dtype)), np.float64)
+    return jacobian @ covariance @ jacobian.T
+
