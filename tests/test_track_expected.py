@@ -12,6 +12,7 @@ from photonflow.emission import emission_model
 from photonflow.errors import ConfigError
 from photonflow.generator import stack_tracks
 from photonflow.geometry.sensor_arrays import sensors_for
+from photonflow.likelihood import dense_nll, hit_arrays
 from photonflow.response.detection import acceptance_at_cos
 from photonflow.transport.optics import interaction_rates
 from photonflow.transport.track_direct import track_direct_light
@@ -186,15 +187,20 @@ def test_autodiff_matches_finite_differences_with_the_indirect_light(toy):
         predict = pf.expected_function(detector, jnp.float64,
                                        config=pf.TransportConfig(n_rays=128, n_bounces=2))
 
-        def loss(x, reference, event):
-            return pf.nll(predict(params, track_of(x), None, reference), event)
+        def nll(prediction, hits):  # pf.nll on the event's dense (N,) arrays: one
+            return dense_nll(prediction, *hits, prediction.dark_rate,  # program for
+                             prediction.spe_width, prediction.window)  # every event
 
-        def own_loss(x, event):
-            return pf.nll(predict(params, track_of(x)), event)
+        def loss(x, reference, hits):
+            return nll(predict(params, track_of(x), None, reference), hits)
+
+        def own_loss(x, hits):
+            return nll(predict(params, track_of(x)), hits)
 
         value_and_grad = jax.jit(jax.value_and_grad(loss))
         steps = [1e-5] * 4 + [1e-6] * 3
         for k, (point, event) in enumerate(zip(points, events, strict=True)):
+            event = hit_arrays(event, detector.n_sensors, jnp.float64)
             start = jnp.asarray(point + np.array([0.03, -0.02, 0.02, 0.5, 0.02, -0.03, 0.05]))
             reference = track_of(start)
             value, gradient = value_and_grad(start, reference, event)
