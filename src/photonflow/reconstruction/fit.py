@@ -3,7 +3,8 @@
 ``reconstruct`` seeds the fit from the hits alone (``seeding``), places a few starts
 behind the point-source vertex along the seeded direction and its opposite (the
 particle outruns its light), evaluates the likelihood at each and fits the best
-``RecoSettings.fits`` of them; the best minimum is kept. The likelihood is the full
+``RecoSettings.fits`` of them, and the next likeliest (at most ``restarts``) while none
+has converged; the best converged minimum is kept. The likelihood is the full
 charge + first-hit-time likelihood with dark noise (``likelihood.dense_sensor_nll``) of
 the expected response of the track (``expected_function``), in the free coordinates of
 ``coordinates`` (the vertex stays inside the detector by the map). Two minimisers
