@@ -235,12 +235,11 @@ def test_a_fit_that_did_not_converge_is_followed_by_the_next_start(toy, sampled_
 
     def minimise(functions, detector, model, data, start, settings):
         starts.append(start)
-        result = fit.RecoResult(position=np.asarray(start.position), time=start.time,
-                                direction=np.asarray(start.direction), energy=start.energy,
-                                covariance=np.eye(7), nll=100.0 - len(starts),
-                                particle=start.particle, converged=len(starts) > 1,
-                                iterations=1, seconds=0.0)
-        return result
+        return fit.RecoResult(position=np.asarray(start.position), time=start.time,
+                              direction=np.asarray(start.direction), energy=start.energy,
+                              covariance=np.eye(7), nll=100.0 - len(starts),
+                              particle=start.particle, converged=len(starts) > 1,
+                              iterations=1, seconds=0.0)
 
     monkeypatch.setattr(fit, "minimise_gradient", minimise)
     settings = RecoSettings(fits=1, scan_directions=2, restarts=restarts)

@@ -187,9 +187,10 @@ def test_autodiff_matches_finite_differences_with_the_indirect_light(toy):
         predict = pf.expected_function(detector, jnp.float64,
                                        config=pf.TransportConfig(n_rays=128, n_bounces=2))
 
-        def nll(prediction, hits):  # pf.nll on the event's dense (N,) arrays: one
-            return dense_nll(prediction, *hits, prediction.dark_rate,  # program for
-                             prediction.spe_width, prediction.window)  # every event
+        # pf.nll on the event's dense (N,) arrays: one program for every event
+        def nll(prediction, hits):
+            return dense_nll(prediction, *hits, prediction.dark_rate,
+                             prediction.spe_width, prediction.window)
 
         def loss(x, reference, hits):
             return nll(predict(params, track_of(x), None, reference), hits)

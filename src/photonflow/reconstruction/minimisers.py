@@ -55,7 +55,6 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
     """L-BFGS from ``start``, with reference refreshes (module docstring)."""
     dtype = data.charge.dtype
     reference, iterations, evaluations, converged = start, 0, 0, False
-    value = math.nan
     for stage in range(settings.refreshes + 2):
         use_time = stage > 0  # a charge-only stage first: its landscape is smoother
         frame = fit_frame(detector.shape, reference.direction, model.energy_range,
@@ -105,8 +104,8 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
         reference = fitted
         if use_time and not moved:
             break
-    value = float(functions.value(free_from_track(frame, cast_track(reference, dtype)), frame,
-                                  cast_track(reference, dtype), data))
+    fixed = cast_track(reference, dtype)
+    value = float(functions.value(free_from_track(frame, fixed), frame, fixed, data))
     covariance = _covariance(functions, detector, model, data, reference)
     # a point whose Hessian is not positive definite is not a minimum (a saddle, or a
     # ridge the tolerance stopped on): never reported as converged
