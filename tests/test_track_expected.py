@@ -304,6 +304,15 @@ def test_bad_tracks_are_refused(toy):
     at_top = pf.expected(detector, params, pf.Track("mu-", [0.0, 0.0, 0.0], [0, 0, 1], 5000.0),
                          config=pf.TransportConfig(n_bounces=0))
     assert float(jnp.sum(at_top.charge)) > 0
+    # a concrete track closed over by a traced function (here the params are traced) is
+    # checked the same way, and a good one traces
+    direct = pf.TransportConfig(n_bounces=0)
+    with pytest.raises(ConfigError, match="track.energy = .*beyond the emission tables"):
+        jax.eval_shape(lambda p: pf.expected(detector, p, pf.Track(
+            "mu-", [0.0, 0.0, 0.0], [0, 0, 1], top * 1.5), config=direct).charge, params)
+    traced = jax.eval_shape(lambda p: pf.expected(detector, p, pf.Track(
+        "mu-", [0.0, 0.0, 0.0], [0, 0, 1], 500.0), config=direct).charge, params)
+    assert traced.shape == (detector.n_sensors,)
 
 
 def test_direct_arrival_times_match_the_sampled_photons():

@@ -26,6 +26,7 @@ from weakref import WeakKeyDictionary
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..emission import emission_model, scintillation_emission
 from ..emission.models import cherenkov_spectral_factor, scintillation_spectral_factor
@@ -119,7 +120,7 @@ def check_expected_track(track: Track, detector: Detector) -> Track:
     (``check_track``) or with an energy beyond its emission model's tables."""
     check_track(track, detector)
     top = emission_model(track.particle, detector_medium(detector)).energy_range[1]
-    energy = float(jnp.max(jnp.asarray(track.energy)))
+    energy = float(np.max(np.asarray(track.energy)))  # numpy: not traced inside jit
     if energy > top * (1.0 + 1e-6):  # the top node, read back from float32, included
         raise ConfigError(f"track.energy = {format_value(energy)} MeV: beyond the emission"
                           f" tables of {track.particle} (up to {top:g} MeV)")
