@@ -22,8 +22,9 @@ track has moved from it by more than ``RecoSettings.refresh_distance`` (m) or
 move to the fitted track and the fit continues (at most ``refreshes`` times). The
 covariance is the inverse of the Hessian of the negative log-likelihood (the observed
 Fisher information) at the fitted track in ``coordinates.LOCAL``, the Hessian from
-exact second derivatives for both methods' reporting of the gradient fit and from HESSE
-(transformed to the same coordinates) for MINUIT. Lengths m, times ns, energies MeV.
+central differences of exact gradients (``minimisers.local_hessian``) for the gradient
+fit and from HESSE (transformed to the same coordinates) for MINUIT. Lengths m, times
+ns, energies MeV.
 """
 
 from __future__ import annotations
@@ -210,12 +211,13 @@ def event_problem(event, n_sensors: int) -> str | None:
 
 @dataclasses.dataclass(frozen=True)
 class _Functions:
-    """The jitted pieces of one (detector, dtype, config): the likelihood of a track and
-    its gradient in free coordinates, and the Hessian in local coordinates."""
+    """The jitted pieces of one (detector, dtype, config): the likelihood of a track in
+    free coordinates, ``value(free, frame, reference, data)``, and its value and gradient
+    in free or ``LOCAL`` coordinates, ``value_and_grad(x, local, frame, reference, data,
+    time_weight)`` (``local``: a bool array, traced: one program for both)."""
 
     value: object
     value_and_grad: object
-    hessian: object
     total_charge: object
     window: tuple[float, float]
     emission: object
@@ -276,11 +278,11 @@ def _build_functions(detector, dtype, config: TransportConfig,
     def free_nll(free, frame, reference, data, time_weight=1.0):
         return track_nll(track_from_free(frame, free), reference, data, time_weight)
 
-    @jax.jit
-    def hessian(local, frame, reference, data):
-        gradient = jax.grad(lambda y: track_nll(track_from_local(frame, y), reference, data))
-        basis = jnp.eye(local.shape[0], dtype=local.dtype)
-        return jax.lax.map(lambda v: jax.jvp(gradient, (local,), (v,))[1], basis)
+    def coordinate_nll(x, local, frame, reference, data, time_weight):
+        # one program for the fit (free coordinates) and the Hessian (LOCAL ones): the
+        # cheap coordinate maps are the two branches, the likelihood is shared
+        track = jax.lax.cond(local, track_from_local, track_from_free, frame, x)
+        return track_nll(track, reference, data, time_weight)
 
     @jax.jit
     def total_charge(track, data):
@@ -289,8 +291,8 @@ def _build_functions(detector, dtype, config: TransportConfig,
 
     medium = detector_medium(detector)
     return _Functions(value=jax.jit(free_nll),
-                      value_and_grad=jax.jit(jax.value_and_grad(free_nll)),
-                      hessian=hessian, total_charge=total_charge, window=window,
+                      value_and_grad=jax.jit(jax.value_and_grad(coordinate_nll)),
+                      total_charge=total_charge, window=window,
                       emission=lambda particle: emission_model(particle, medium, dtype,
                                                                config.emission_model),
                       sensors=sensors_for(detector, dtype))

@@ -2,7 +2,8 @@
 reference refreshes of the module docstring of ``fit``:
 
 - ``minimise_gradient``: L-BFGS (``photonflow.lbfgs``) on exact gradients, the
-  covariance from the exact Hessian;
+  covariance from the Hessian of central differences of exact gradients
+  (``local_hessian``);
 - ``minimise_minuit``: MIGRAD with numerical derivatives, errors by HESSE.
 
 Both return a ``RecoResult`` (``converged`` only at a minimum with a positive-definite
@@ -63,8 +64,8 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
         weight = jnp.asarray(float(use_time), dtype)
 
         def value_and_grad(x, frame=frame, fixed=fixed, weight=weight):
-            value, gradient = functions.value_and_grad(jnp.asarray(x, dtype), frame, fixed,
-                                                       data, weight)
+            value, gradient = functions.value_and_grad(jnp.asarray(x, dtype), FREE, frame,
+                                                       fixed, data, weight)
             return float(value), np.asarray(gradient, np.float64)
 
         free = np.asarray(free_from_track(frame, fixed), np.float64)
@@ -124,16 +125,66 @@ def _stalled(values, patience: int, tolerance: float) -> bool:
         values[-k - 1] - values[-k] < tolerance for k in range(1, patience + 1))
 
 
+#: ``value_and_grad``'s coordinates: free (the fit's) or ``LOCAL`` (the covariance's);
+#: bool arrays, traced, so that both use one compiled program.
+FREE, LOCAL_COORDINATES = np.bool_(False), np.bool_(True)
+#: Steps of the Hessian's first pass of central differences in ``LOCAL`` coordinates
+#: (m, m, m, ns, direction tangents, direction tangents, log of MeV) ...
+HESSIAN_STEPS = (0.01, 0.01, 0.01, 0.05, 0.002, 0.002, 0.002)
+#: ... and of the second, as a fraction of each coordinate's 1 sigma (with the others
+#: fixed) from the first.
+HESSIAN_STEP_SIGMA = 0.1
+
+
+def local_hessian(functions, frame, track: Track, data, wall: float = math.inf) -> np.ndarray:
+    """(7, 7) Hessian of the negative log-likelihood at ``track`` in ``LOCAL``
+    coordinates about ``frame``'s axis (units of the coordinates: m, ns, tangents, log
+    of MeV), symmetrised: central differences of the exact gradient, a pass with
+    ``HESSIAN_STEPS`` and a second with steps of ``HESSIAN_STEP_SIGMA`` of each
+    coordinate's 1 sigma from the first (28 gradients), within 0.1-10x the first steps
+    and, for the vertex, half the distance ``wall`` (m) to the detector's wall.
+
+    Differences of exact gradients over a tenth of a sigma rather than forward-over-
+    reverse second derivatives: they run the fit's own gradient program (a second
+    program took ~2.5x as long to compile as the gradient's, 20 s on the toy
+    detector), and they measure the likelihood's curvature on the scale of its errors,
+    where the pointwise second derivatives of the track likelihood differed from the
+    converged differences of its gradient by up to 8 % in a 1-sigma error
+    (``docs/reconstruction.md``)."""
+    dtype = data.charge.dtype
+    centre = np.asarray(local_from_track(track, dtype), np.float64)
+    one = jnp.asarray(1.0, dtype)
+
+    def gradient(point):
+        return np.asarray(functions.value_and_grad(jnp.asarray(point, dtype),
+                                                   LOCAL_COORDINATES, frame, track, data,
+                                                   one)[1], np.float64)
+
+    first = np.asarray(HESSIAN_STEPS, np.float64)
+    lowest, highest = 0.1 * first, 10.0 * first
+    highest[:3] = np.minimum(highest[:3], max(0.5 * wall, 1e-5))
+    steps = np.minimum(first, highest)
+    for _ in range(2):
+        columns = [(gradient(centre + h * e) - gradient(centre - h * e)) / (2.0 * h)
+                   for h, e in zip(steps, np.eye(centre.size), strict=True)]
+        hessian = np.stack(columns, axis=1)
+        hessian = 0.5 * (hessian + hessian.T)
+        curvature = np.diag(hessian)
+        if not np.all(np.isfinite(hessian)) or np.any(curvature <= 0):
+            break  # not a minimum: the first pass's Hessian says so
+        steps = np.clip(HESSIAN_STEP_SIGMA / np.sqrt(curvature), np.minimum(lowest, highest),
+                        highest)
+    return hessian
+
+
 def _covariance(functions, detector, model, data, track) -> np.ndarray:
     """Inverse Hessian of the negative log-likelihood at ``track`` in ``LOCAL``
     coordinates (NaN where the Hessian is not positive definite)."""
     dtype = data.charge.dtype
     frame = fit_frame(detector.shape, track.direction, model.energy_range, track.particle,
                       0.0, dtype)
-    cast = cast_track(track, dtype)
-    hessian = np.asarray(functions.hessian(local_from_track(cast, dtype), frame, cast, data),
-                         np.float64)
-    hessian = 0.5 * (hessian + hessian.T)
+    wall = float(detector.shape.distance_to_wall(np.asarray(track.position, np.float64)))
+    hessian = local_hessian(functions, frame, cast_track(track, dtype), data, wall)
     try:
         np.linalg.cholesky(hessian)
     except np.linalg.LinAlgError:
