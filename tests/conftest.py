@@ -16,6 +16,11 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 #: and the command-line subprocesses alike, and only where this XLA knows the flag (an
 #: unknown flag in XLA_FLAGS aborts the process, so a child process asks first).
 CLASSIC_EMITTERS = "--xla_cpu_use_fusion_emitters=false"
+#: Not set: JAX_DISABLE_MOST_OPTIMIZATIONS (LLVM at O0). For the whole run it took
+#: 1,769 s against 1,386 s (2026-11-27: the fits run ~3x slower); in the compile-bound
+#: modules alone it would save ~285 worker-seconds of ~2,700, but there the gradient of
+#: the track light with its own reference (test_track_expected) came out 12 % off, so
+#: the suite compiles its programs as users get them (test_robustness's checker aside).
 
 
 def _use_classic_emitters() -> None:
