@@ -301,12 +301,12 @@ def test_bad_tracks_are_refused(toy):
     with pytest.raises(ConfigError, match="track.energy = .*beyond the emission tables"):
         pf.expected(detector, params, pf.Track("mu-", [0.0, 0.0, 0.0], [0, 0, 1], top * 1.5))
     # the tables' top energy itself (5 GeV) is accepted
+    direct = pf.TransportConfig(n_bounces=0)
     at_top = pf.expected(detector, params, pf.Track("mu-", [0.0, 0.0, 0.0], [0, 0, 1], 5000.0),
-                         config=pf.TransportConfig(n_bounces=0))
+                         config=direct)
     assert float(jnp.sum(at_top.charge)) > 0
     # a concrete track closed over by a traced function (here the params are traced) is
     # checked the same way, and a good one traces
-    direct = pf.TransportConfig(n_bounces=0)
     with pytest.raises(ConfigError, match="track.energy = .*beyond the emission tables"):
         jax.eval_shape(lambda p: pf.expected(detector, p, pf.Track(
             "mu-", [0.0, 0.0, 0.0], [0, 0, 1], top * 1.5), config=direct).charge, params)

@@ -160,21 +160,21 @@ def local_hessian(functions, frame, track: Track, data, wall: float = math.inf) 
                                                    LOCAL_COORDINATES, frame, track, data,
                                                    one)[1], np.float64)
 
-    first = np.asarray(HESSIAN_STEPS, np.float64)
-    lowest, highest = 0.1 * first, 10.0 * first
-    highest[:3] = np.minimum(highest[:3], max(0.5 * wall, 1e-5))
-    steps = np.minimum(first, highest)
-    for _ in range(2):
+    def differences(steps):
         columns = [(gradient(centre + h * e) - gradient(centre - h * e)) / (2.0 * h)
                    for h, e in zip(steps, np.eye(centre.size), strict=True)]
         hessian = np.stack(columns, axis=1)
-        hessian = 0.5 * (hessian + hessian.T)
-        curvature = np.diag(hessian)
-        if not np.all(np.isfinite(hessian)) or np.any(curvature <= 0):
-            break  # not a minimum: the first pass's Hessian says so
-        steps = np.clip(HESSIAN_STEP_SIGMA / np.sqrt(curvature), np.minimum(lowest, highest),
-                        highest)
-    return hessian
+        return 0.5 * (hessian + hessian.T)
+
+    first = np.asarray(HESSIAN_STEPS, np.float64)
+    highest = 10.0 * first
+    highest[:3] = np.minimum(highest[:3], max(0.5 * wall, 1e-5))
+    hessian = differences(np.minimum(first, highest))
+    curvature = np.diag(hessian)
+    if not np.all(np.isfinite(hessian)) or np.any(curvature <= 0):
+        return hessian  # not a minimum: the first pass says so
+    lowest = np.minimum(0.1 * first, highest)
+    return differences(np.clip(HESSIAN_STEP_SIGMA / np.sqrt(curvature), lowest, highest))
 
 
 def _covariance(functions, detector, model, data, track) -> np.ndarray:
