@@ -73,10 +73,10 @@ def main() -> None:
             """(charge, time) terms of the negative log-likelihood at ``track``, the rays
             of the indirect light fixed by ``reference`` (one ray sample for the truth
             and the fit: with another, the difference would carry the rays' noise)."""
-            cast = fitting._cast_track(track, DTYPE)
+            cast = fitting.cast_track(track, DTYPE)
             frame = fit_frame(detector.shape, track.direction, energy_range, "mu-", 0.0, DTYPE)
             free = free_from_track(frame, cast)
-            reference = fitting._cast_track(reference, DTYPE)
+            reference = fitting.cast_track(reference, DTYPE)
             full = float(functions.value(free, frame, reference, data, 1.0))
             charge = float(functions.value(free, frame, reference, data, 0.0))
             return charge, full - charge
@@ -102,7 +102,7 @@ def main() -> None:
                                   result.time)
                 data = fitting._event_data(detector, params, event, DTYPE, functions)
                 data = dataclasses.replace(data, emission=functions.emission("mu-"))
-                cast = fitting._cast_track(fitted, DTYPE)
+                cast = fitting.cast_track(fitted, DTYPE)
                 frame = fit_frame(detector.shape, fitted.direction, energy_range, "mu-",
                                   0.0, DTYPE)
                 jacobian = np.asarray(scores(local_from_track(cast, DTYPE), frame, cast,

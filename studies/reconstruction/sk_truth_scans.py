@@ -69,18 +69,18 @@ def main() -> None:
                 fitting._event_data(detector, params, event, DTYPE, functions),
                 emission=functions.emission("mu-"))
             direction = np.asarray(truth.direction)
-            reference = fitting._cast_track(pf.Track("mu-", truth.position, direction,
+            reference = fitting.cast_track(pf.Track("mu-", truth.position, direction,
                                                      truth.energy, truth.time), DTYPE)
             for i, s in enumerate(SHIFTS):
                 moved = pf.Track("mu-", np.asarray(truth.position) + s * direction, direction,
                                  truth.energy - DEDX * s, truth.time + s / BETA_C)
-                shift_scan[k, i] = parts(prediction(fitting._cast_track(moved, DTYPE),
+                shift_scan[k, i] = parts(prediction(fitting.cast_track(moved, DTYPE),
                                                     reference, data), data,
                                          args.overdispersion)
             for i, step in enumerate(ENERGY_STEPS):
                 scaled = pf.Track("mu-", truth.position, direction,
                                   truth.energy * (1 + step), truth.time)
-                energy_scan[k, i] = parts(prediction(fitting._cast_track(scaled, DTYPE),
+                energy_scan[k, i] = parts(prediction(fitting.cast_track(scaled, DTYPE),
                                                      reference, data), data,
                                           args.overdispersion)
             true_prediction = prediction(reference, reference, data)

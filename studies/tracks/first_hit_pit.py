@@ -3,7 +3,7 @@
 
     python studies/tracks/first_hit_pit.py [--detector SK] [--particle mu-]
         [--energy 1000] [--events 200] [--start 0,0,0] [--direction 1,0,0] [--keys 1]
-        [--overdispersion 0.3]
+        [--overdispersion 0.3] [--hits hits.npz]
 
 Events from the generator + sampled transport, each detected photon's time smeared by the
 transit-time spread and shifted by its sensor's time offset; for every sensor j that
@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -68,6 +69,22 @@ def first_hits(detector, params, track, index, light, rng):
     return first, np.asarray(tally.n_pe)
 
 
+def sampled_hits(detector, params, track, events, path=None):
+    """The (first times, counts) of ``events`` sampled events, from the npz file ``path``
+    if it exists (written there otherwise)."""
+    if path is not None and Path(path).exists():
+        with np.load(path) as saved:
+            return list(zip(saved["first"][:events], saved["count"][:events], strict=True))
+    light = track_light(detector)
+    rng = np.random.default_rng(3)
+    hits = [first_hits(detector, params, track, i, light, rng)
+            for i in with_progress(range(events), "sampled events", show=True)]
+    if path is not None:
+        np.savez_compressed(path, first=np.stack([h[0] for h in hits]),
+                            count=np.stack([h[1] for h in hits]))
+    return hits
+
+
 def pit_values(prediction, hits, overdispersion=0.0):
     """(PIT given the true count, PIT given the expected charge, expected charge) of every
     hit sensor over the events ``hits`` ((first times, counts) pairs); the second with
@@ -108,6 +125,9 @@ def main() -> None:
     parser.add_argument("--direction", type=_vector, default=_vector("1,0,0"))
     parser.add_argument("--keys", type=int, default=1)
     parser.add_argument("--overdispersion", type=float, default=0.0)
+    parser.add_argument("--hits", default=None,
+                        help="npz file of the sampled first hits: read if it exists "
+                             "(same settings), else written")
     args = parser.parse_args()
     detector = pf.load_detector(args.detector)
     base = pf.default_params(detector)
@@ -127,10 +147,7 @@ def main() -> None:
         if predictions[0].time_tau is not None:
             prediction = dataclasses.replace(
                 prediction, time_tau=jnp.concatenate([p.time_tau for p in predictions], 1))
-    light = track_light(detector)
-    rng = np.random.default_rng(3)
-    hits = [first_hits(detector, params, track, i, light, rng)
-            for i in with_progress(range(args.events), "sampled events", show=True)]
+    hits = sampled_hits(detector, params, track, args.events, args.hits)
     given_count, given_mean, charges = pit_values(prediction, hits)
     counts, chi2 = flatness(given_count)
     print(f"{args.detector} {args.particle} {args.energy:g} MeV: {given_count.size} first"

@@ -10,11 +10,11 @@ indirect light is smooth in the track). The light is a mixture of C + n_bounces 
 components per sensor: C for the direct light (``track_direct.DIRECT_COMPONENTS``, each
 moment-matched to a run of the quadrature's nodes), then one per bounce order as for
 point sources, but exponentially modified (``_skewed_indirect``: scattered light starts
-sharply and trails off); in a scintillator, its isotropic scintillation light
-(``emission.ScintillationModel``) through the same quadrature and rays, each of its
-components split into one exponentially modified component per decay time. The sensor
-response (``response.expected_response``) then applies efficiencies, offsets and the
-transit-time spread. Lengths m, times ns, energies MeV.
+no earlier than direct light can arrive, and trails off); in a scintillator, its
+isotropic scintillation light (``emission.ScintillationModel``) through the same
+quadrature and rays, each of its components split into one exponentially modified
+component per decay time. The sensor response (``response.expected_response``) then
+applies efficiencies, offsets and the transit-time spread. Lengths m, times ns, energies MeV.
 """
 
 from __future__ import annotations
@@ -87,12 +87,6 @@ def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, s
     )
 
 
-#: Share kappa of an indirect component's spread carried by its exponential delay
-#: (skewness 2 kappa^3). Chosen on the all-photon arrival times of SK muons (20 events,
-#: sensors of < 1 expected p.e., whose light is mostly indirect; studies/
-#: track-light-validation.md): PIT chi2/ndf 97 for Gaussians (kappa 0), 72 at 0.6, 60 at
-#: 0.8, 192 at 1 (pure exponential).
-INDIRECT_TAIL_SHARE = 0.8
 #: Indirect components whose exponential delay would be below this (ns) stay Gaussian.
 SHORTEST_TAIL = 0.1
 
@@ -113,19 +107,27 @@ def earliest_arrival(sensors: Sensors, params, position, direction, time, length
 
 def _skewed_indirect(charge, mean, variance, onset):
     """The indirect components (after the ``DIRECT_COMPONENTS``) as exponentially
-    modified Gaussians of the same mean, starting no earlier than ``onset`` (N,) ns
-    (``earliest_arrival``): scattered and reflected light starts sharply and trails off,
-    and a Gaussian puts a share of it before any light can arrive. Delay tau =
-    min(kappa sd, mean - onset) (``INDIRECT_TAIL_SHARE``), Gaussian width
-    sqrt(variance - tau^2), mean - tau; before the transit-time spread. Returns
-    (charge, mean, variance, tau) (N, K)."""
+    modified Gaussians with the skewness of a gamma distribution that starts at
+    ``onset`` (N,) ns (``earliest_arrival``): scattered and reflected light cannot
+    arrive before it, and a symmetric shape puts a share of the light there.
+
+    A component of mean m and spread s, with d = m - onset, is the gamma distribution of
+    that mean and variance starting at the onset (shape k = d^2 / s^2, skewness 2 s / d)
+    matched in its first three moments: exponential delay tau = s (s / d)^(1/3),
+    Gaussian variance s^2 - tau^2 and mean m - tau. A spread wider than d (k < 1, a
+    shape falling from the onset) is an exponential from the onset, tau = d. Before the
+    transit-time spread. Returns (charge, mean, variance, tau) (N, K)."""
     indirect = slice(DIRECT_COMPONENTS, None)
     spread = safe_sqrt(variance[:, indirect])
-    delay = jnp.clip(mean[:, indirect] - onset[:, None], 0.0, INDIRECT_TAIL_SHARE * spread)
-    tail = delay > SHORTEST_TAIL
-    tau = where(tail, delay, 0.0)
+    delay = jnp.maximum(mean[:, indirect] - onset[:, None], SHORTEST_TAIL)
+    narrow = spread < delay
+    ratio = where(narrow & (spread > 0.0), spread / delay, 1.0)
+    tau = where(narrow, spread * jnp.cbrt(ratio), delay)
+    tail = tau > SHORTEST_TAIL
+    tau = where(tail, tau, 0.0)
     mean = mean.at[:, indirect].add(-tau)
-    variance = variance.at[:, indirect].set(jnp.maximum(variance[:, indirect] - tau * tau, 0.0))
+    gaussian = where(narrow, jnp.maximum(variance[:, indirect] - tau * tau, 0.0), 0.0)
+    variance = variance.at[:, indirect].set(where(tail, gaussian, variance[:, indirect]))
     return charge, mean, variance, jnp.concatenate([jnp.zeros_like(mean[:, :DIRECT_COMPONENTS]),
                                                     tau], axis=1)
 
