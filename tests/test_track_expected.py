@@ -15,7 +15,8 @@ from photonflow.geometry.sensor_arrays import sensors_for
 from photonflow.likelihood import dense_nll, hit_arrays
 from photonflow.response.detection import acceptance_at_cos
 from photonflow.transport.optics import interaction_rates
-from photonflow.transport.track_direct import track_direct_light
+from photonflow.transport.track_direct import DIRECT_COMPONENTS, track_direct_light
+from photonflow.transport.track_expected import _skewed_indirect
 
 
 @pytest.fixture(scope="module")
@@ -313,6 +314,39 @@ def test_bad_tracks_are_refused(toy):
     traced = jax.eval_shape(lambda p: pf.expected(detector, p, pf.Track(
         "mu-", [0.0, 0.0, 0.0], [0, 0, 1], 500.0), config=direct).charge, params)
     assert traced.shape == (detector.n_sensors,)
+
+
+def test_indirect_components_keep_their_moments_and_start_at_the_onset():
+    """Each bounce order's component keeps its mean and variance (exponential delay tau
+    plus Gaussian: mean m, variance s^2), takes the skewness 2 s / d of the gamma
+    distribution of those moments that starts at the onset (d = m - onset), and a
+    component wider than d is an exponential from the onset (no Gaussian width)."""
+    onset = np.array([10.0, 10.0, 10.0, 10.0])
+    mean_indirect = np.array([40.0, 40.0, 25.0, 10.05])  # d = 30, 30, 15, 0.05 ns
+    spread = np.array([6.0, 24.0, 30.0, 5.0])  # s < d, s < d, s > d, s > d (tiny d)
+    zeros = np.zeros((4, DIRECT_COMPONENTS))
+    charge = np.ones((4, DIRECT_COMPONENTS + 1))
+    mean = np.concatenate([zeros + 12.0, mean_indirect[:, None]], axis=1)
+    variance = np.concatenate([zeros + 4.0, spread[:, None] ** 2], axis=1)
+    _, shifted, gaussian, tau = (np.asarray(x, np.float64) for x in _skewed_indirect(
+        jnp.asarray(charge), jnp.asarray(mean), jnp.asarray(variance), jnp.asarray(onset)))
+    np.testing.assert_array_equal(tau[:, :DIRECT_COMPONENTS], 0.0)  # direct: untouched
+    np.testing.assert_allclose(shifted[:, :DIRECT_COMPONENTS], 12.0)
+    tau, shifted, gaussian = tau[:, -1], shifted[:, -1], gaussian[:, -1]
+    narrow = slice(0, 2)
+    np.testing.assert_allclose((shifted + tau)[narrow], mean_indirect[narrow], rtol=1e-6)
+    np.testing.assert_allclose((gaussian + tau ** 2)[narrow], spread[narrow] ** 2, rtol=1e-5)
+    skewness = 2.0 * tau ** 3 / spread ** 3  # that of an exponentially modified Gaussian
+    np.testing.assert_allclose(skewness[narrow], 2.0 * spread[narrow] / 30.0, rtol=1e-5)
+    np.testing.assert_allclose(tau[2], 15.0, rtol=1e-6)  # wide: exponential from the onset
+    np.testing.assert_allclose(shifted[2], 10.0, rtol=1e-6)
+    assert gaussian[2] == 0.0
+    # a component at the onset is Gaussian (a delay below SHORTEST_TAIL), as it was
+    assert tau[3] == 0.0 and gaussian[3] == pytest.approx(25.0)
+    gradient = jax.grad(lambda v: jnp.sum(jnp.stack(_skewed_indirect(
+        jnp.asarray(charge), jnp.asarray(mean), v, jnp.asarray(onset))[1:])))(
+        jnp.asarray(variance))
+    assert np.all(np.isfinite(np.asarray(gradient)))
 
 
 def test_direct_arrival_times_match_the_sampled_photons():
