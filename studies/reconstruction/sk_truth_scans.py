@@ -1,11 +1,12 @@
 """The likelihood of sampled SK muons near their true tracks: where it is lowest in
 energy at the true vertex, and along the track's start (vertex moved by s along the
 direction, time by s / (beta c), energy by -dE/dx s), charge and first-hit-time terms
-apart; and its value at the truth for several overdispersions
-(studies/reconstruction-validation.md).
+apart; its value at the truth for several overdispersions; and the first-hit term at
+the true track with the predicted times of one band of sensors (by expected charge)
+moved by a common offset (studies/reconstruction-validation.md).
 
     python studies/reconstruction/sk_truth_scans.py sk20.h5 [--events 20]
-        [--overdispersion 0.3] [--rays 1024]
+        [--overdispersion 0.3] [--rays 1024] [--offsets-only]
 
 The rays of the indirect light are fixed by the true track throughout, so the scans see
 no change of ray sample. Prints the scans summed over the events and the mean and
@@ -31,6 +32,8 @@ DEDX = 225.0  # MeV/m, a 1 GeV muon in water
 SHIFTS = np.round(np.arange(-0.1, 0.31, 0.05), 2)  # m
 ENERGY_STEPS = np.round(np.arange(-0.06, 0.041, 0.01), 2)  # relative
 OVERDISPERSIONS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
+TIME_OFFSETS = np.round(np.arange(-0.6, 0.91, 0.3), 1)  # ns
+BANDS = ((0.0, 1.0), (1.0, 10.0), (10.0, np.inf))  # expected p.e.
 
 
 def main() -> None:
@@ -39,6 +42,8 @@ def main() -> None:
     parser.add_argument("--events", dest="count", type=int, default=20)
     parser.add_argument("--overdispersion", type=float, default=0.0)
     parser.add_argument("--rays", type=int, default=1024)
+    parser.add_argument("--offsets-only", action="store_true",
+                        help="only the time-offset scan by band")
     args = parser.parse_args()
     config = pf.TransportConfig(n_rays=args.rays)
     window = tuple(float(x) for x in config.window)
@@ -62,6 +67,7 @@ def main() -> None:
         shift_scan = np.zeros((args.count, SHIFTS.size, 2))
         energy_scan = np.zeros((args.count, ENERGY_STEPS.size, 2))
         at_truth = np.zeros((len(OVERDISPERSIONS), 2))
+        offset_scan = np.zeros((len(BANDS), args.count, TIME_OFFSETS.size, 2))
         for k in range(min(args.count, len(events))):
             event = events[k]
             truth = event.truth
@@ -71,6 +77,18 @@ def main() -> None:
             direction = np.asarray(truth.direction)
             reference = fitting.cast_track(pf.Track("mu-", truth.position, direction,
                                                      truth.energy, truth.time), DTYPE)
+            true_prediction = prediction(reference, reference, data)
+            expected_charge = np.asarray(true_prediction.charge)
+            for b, (low, high) in enumerate(BANDS):
+                band = jnp.asarray((expected_charge >= low) & (expected_charge < high))
+                for i, offset in enumerate(TIME_OFFSETS):
+                    moved = dataclasses.replace(
+                        true_prediction, time_mean=true_prediction.time_mean
+                        + jnp.where(band, DTYPE(offset), DTYPE(0))[:, None])
+                    offset_scan[b, k, i] = parts(moved, data, args.overdispersion)
+            if args.offsets_only:
+                print(f"event {k} done", flush=True)
+                continue
             for i, s in enumerate(SHIFTS):
                 moved = pf.Track("mu-", np.asarray(truth.position) + s * direction, direction,
                                  truth.energy - DEDX * s, truth.time + s / BETA_C)
@@ -83,10 +101,14 @@ def main() -> None:
                 energy_scan[k, i] = parts(prediction(fitting.cast_track(scaled, DTYPE),
                                                      reference, data), data,
                                           args.overdispersion)
-            true_prediction = prediction(reference, reference, data)
             for i, r in enumerate(OVERDISPERSIONS):
                 at_truth[i] += parts(true_prediction, data, r)
             print(f"event {k} done", flush=True)
+    for (low, high), scan in zip(BANDS, offset_scan, strict=True):
+        _report(f"time offset (ns) of sensors expecting {low:g}-{high:g} p.e.", TIME_OFFSETS,
+                scan)
+    if args.offsets_only:
+        return
     _report("shift s (m)", SHIFTS, shift_scan)
     _report("energy step", ENERGY_STEPS, energy_scan)
     print("-log L at the truth, summed, relative to Poisson: overdispersion, charge, time")
