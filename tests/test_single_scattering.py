@@ -108,3 +108,34 @@ def test_single_scattering_matches_an_adjoint_volume_integral():
         tolerance = 0.005 if band is order else 0.01
         assert value > 0
         assert abs(expected - value) < 4 * error + tolerance * value, (expected, value, error)
+
+
+def test_the_indirect_light_splits_by_the_kind_of_its_last_vertex():
+    """``IndirectLight.kind_*``: with black walls and glass all one-vertex light was last
+    scattered in the bulk; with no scattering (a 10^9 m length) and reflecting walls none
+    was; and with both, the two parts add up to the order's light and its mean time."""
+    detector = pf.load_detector("TOY_CYLINDER")
+    base = pf.default_params(detector)
+    source = IsotropicSource(position=[0.4, -0.3, 0.7], n_photons=PHOTONS)
+
+    def light(**changes):
+        result = indirect_light(detector, base.replace(**changes), source, config=CONFIG,
+                                key=jax.random.key(3))
+        return jax.tree.map(lambda x: np.asarray(x, np.float64), result)
+
+    def assert_all_in(part, other, result):
+        np.testing.assert_allclose(result.kind_charge[part, 0], result.charge[0], rtol=1e-4)
+        assert np.all(result.kind_charge[other, 0] <= 1e-6 * result.charge[0])
+        lit = result.charge[0] > 1e-3 * result.charge[0].max()
+        np.testing.assert_allclose(result.kind_time_mean[part, 0][lit],
+                                   result.time_mean[0][lit], atol=1e-3)
+
+    assert_all_in(0, 1, light(scattering_length=8.0, wall_reflectivity=0.0,
+                              sensor_reflectivity=0.0))
+    assert_all_in(1, 0, light(scattering_length=1e9, mie_length=1e9, wall_reflectivity=0.3))
+    both = light(scattering_length=8.0, wall_reflectivity=0.3)
+    shares = both.kind_charge[:, 0] / both.charge[0]
+    assert np.all(shares.min(axis=0) > 0.01)  # both kinds light every sensor here
+    np.testing.assert_allclose(shares.sum(axis=0), 1.0, rtol=1e-4)
+    np.testing.assert_allclose(np.sum(both.kind_charge[:, 0] * both.kind_time_mean[:, 0], 0),
+                               both.charge[0] * both.time_mean[0], rtol=1e-4)

@@ -104,12 +104,20 @@ class IndirectLight:
         time_variance: (n_bounces, N) charge-weighted variance of those times, ns^2.
         residual_weight: scalar, expected photons that would undergo a further vertex
             after the cap (not followed).
+        kind_charge, kind_time_mean, kind_time_variance: (2, n_bounces, N), the same
+            light split by the kind of its last vertex: [0] a bulk scatter, [1] a
+            surface (wall or sensor glass, and the mirrored light). Scattered and
+            reflected light arrive at different times (a scatter near the source early,
+            the far wall late), which one mean and variance per order blur.
     """
 
     charge: jax.Array
     time_mean: jax.Array
     time_variance: jax.Array
     residual_weight: jax.Array
+    kind_charge: jax.Array
+    kind_time_mean: jax.Array
+    kind_time_variance: jax.Array
 
 
 def _moments(total, reference_time) -> tuple:
@@ -166,12 +174,12 @@ def indirect_light_jit(
         lambda *data: nee_in_blocks(nee_block, n, dtype, data), vertex_key, probe_key,
     )
     orders = jnp.arange(1, config.n_bounces + 1)
-    rays, (detected, probes) = jax.lax.scan(step, rays, orders)  # detected: 3 x (K, N)
+    rays, (detected, probes) = jax.lax.scan(step, rays, orders)  # detected: 6 x (K, N)
     t_end, _, hit, alive = trace(shape, sensors, rays.origins, rays.directions)
     residual = residual_weight(
         params, shape.has_walls, where(alive, rays.weight, 0.0), t_end, hit
     )
-    total = list(detected)
+    total, scattered = list(detected[:3]), detected[3:]
     if shape.has_walls and config.n_bounces > 0:
         # specular probes of the source and of the vertices below the cap (whose mirror
         # vertex, order k + 1, is within it), traced together
@@ -192,9 +200,22 @@ def indirect_light_jit(
             total = [t + jnp.zeros_like(t).at[0].set(q)
                      for t, q in zip(total, light, strict=True)]
     charge, mean, variance = _moments(total, reference_time)
+    # the surface part as the difference: kept where it is more than SURFACE_FLOOR of the
+    # total (below, its moments would be rounding noise)
+    surface = [t - c for t, c in zip(total, scattered, strict=True)]
+    kept = surface[0] > SURFACE_FLOOR * total[0]
+    surface = [where(kept, x, 0.0) for x in surface]
+    kinds = [jnp.stack(x) for x in zip(_moments(scattered, reference_time),
+                                       _moments(surface, reference_time), strict=True)]
     return IndirectLight(
-        charge=charge, time_mean=mean, time_variance=variance, residual_weight=residual
+        charge=charge, time_mean=mean, time_variance=variance, residual_weight=residual,
+        kind_charge=kinds[0], kind_time_mean=kinds[1], kind_time_variance=kinds[2],
     )
+
+
+#: Share of an order's light below which its surface part (the total minus the scattered
+#: part) is taken as none.
+SURFACE_FLOOR = 1e-3
 
 
 def _nee_parts(params, sensors: Sensors, config, reference_time, *vertex_data):

@@ -43,6 +43,8 @@ NEE_BLOCK = 128
 NEAR_NODES = 32
 #: Vertex kinds.
 SCATTER, WALL, GLASS = 0, 1, 2
+#: Sums of a next-event estimate: c, c t, c t^2 of every vertex, then of the bulk scatters.
+NEE_SUMS = 6
 
 
 def far_solid_angle(distance, cos_in, radius):
@@ -136,8 +138,9 @@ def next_event_sums(
     params, sensors: Sensors, config, reference, vertex, weight, time, kind, d_in, wall_n,
     own_disc,
 ):
-    """NEE of one vertex per ray to every sensor: (N,) sums of c, c t, c t^2 (t - reference),
-    c in p.e. of a sensor of efficiency 1.
+    """NEE of one vertex per ray to every sensor: ``NEE_SUMS`` (N,) sums, those of c, c t,
+    c t^2 (t - reference) over every vertex, then over the bulk-scatter vertices alone
+    (``kind`` SCATTER); c in p.e. of a sensor of efficiency 1.
 
     ``own_disc`` (R,) is the sensor each vertex leaves out (N for none)."""
     distance, cos_in, factor = vertex_pair_light(
@@ -150,11 +153,9 @@ def next_event_sums(
     own = own_disc[:, None] == jnp.arange(n, dtype=own_disc.dtype)
     contribution = where(own, 0.0, contribution)
     relative = time[:, None] + travel_time(distance, params) - reference
-    return (
-        jnp.sum(contribution, axis=0),
-        jnp.sum(contribution * relative, axis=0),
-        jnp.sum(contribution * relative * relative, axis=0),
-    )
+    scattered = where((kind == SCATTER)[:, None], contribution, 0.0)
+    return tuple(jnp.sum(c * power, axis=0) for c in (contribution, scattered)
+                 for power in (1.0, relative, relative * relative))
 
 
 def near_correction_sums(
@@ -163,7 +164,7 @@ def near_correction_sums(
 ):
     """Exact-minus-far solid-angle correction of the NEE for the sensors near each vertex
     (the candidates of ``sensors.near_grid``, which lists every sensor within 4 radii):
-    (N,) sums of c, c t, c t^2 like ``next_event_sums``; ``own_disc`` (R,) gets none."""
+    the ``NEE_SUMS`` (N,) sums of ``next_event_sums``; ``own_disc`` (R,) gets none."""
     n = sensors.positions.shape[0]
     candidates = grid_candidates(sensors.near_grid, vertex)  # (R, K)
     valid = candidates >= 0
@@ -185,17 +186,15 @@ def near_correction_sums(
     delta = where(seen & ~left_out, exact - far_solid_angle(distance, cos_in, radius), 0.0)
     contribution = weight[:, None] * factor * delta
     relative = time[:, None] + travel_time(distance, params) - reference[index]
+    scattered = where((kind == SCATTER)[:, None], contribution, 0.0)
     zeros = jnp.zeros(n, dtype=contribution.dtype)
     flat = index.reshape(-1)
-    return (
-        zeros.at[flat].add(contribution.reshape(-1)),
-        zeros.at[flat].add((contribution * relative).reshape(-1)),
-        zeros.at[flat].add((contribution * relative * relative).reshape(-1)),
-    )
+    return tuple(zeros.at[flat].add((c * power).reshape(-1)) for c in (contribution, scattered)
+                 for power in (1.0, relative, relative * relative))
 
 
 def nee_in_blocks(nee_block, n: int, dtype, vertex_data):
-    """Next-event sums (3 x (N,)) of R vertices, ``NEE_BLOCK`` rays at a time (memory ~
+    """Next-event sums (``NEE_SUMS`` x (N,)) of R vertices, ``NEE_BLOCK`` rays at a time (memory ~
     NEE_BLOCK x N, not R x N); ``vertex_data`` are (R, ...) arrays, the second the
     weights (padding rays get weight 0)."""
     n_rays = vertex_data[0].shape[0]
@@ -208,5 +207,5 @@ def nee_in_blocks(nee_block, n: int, dtype, vertex_data):
     def accumulate(total, data):
         return tuple(a + b for a, b in zip(total, nee_block(*data), strict=True)), None
 
-    zeros = tuple(jnp.zeros(n, dtype=dtype) for _ in range(3))
+    zeros = tuple(jnp.zeros(n, dtype=dtype) for _ in range(NEE_SUMS))
     return jax.lax.scan(accumulate, zeros, blocks)[0]

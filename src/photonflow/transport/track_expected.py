@@ -6,15 +6,16 @@ spline model of its particle in the detector's medium); the direct light comes b
 quadrature in the angle to the track (``track_direct``), the indirect light (scattered
 and reflected, by bounce order) from the weighted rays of ``indirect.py`` leaving the
 track (``track_rays.TrackEmitter``: their geometry fixed by a reference track, so the
-indirect light is smooth in the track). The light is a mixture of C + n_bounces arrival-time
-components per sensor: C for the direct light (``track_direct.DIRECT_COMPONENTS``, each
-moment-matched to a run of the quadrature's nodes), then one per bounce order as for
-point sources, but exponentially modified (``_skewed_indirect``: scattered light starts
-no earlier than direct light can arrive, and trails off); in a scintillator, its
-isotropic scintillation light (``emission.ScintillationModel``) through the same
-quadrature and rays, each of its components split into one exponentially modified
-component per decay time. The sensor response (``response.expected_response``) then
-applies efficiencies, offsets and the transit-time spread. Lengths m, times ns, energies MeV.
+indirect light is smooth in the track). The light is a mixture of C + 2 n_bounces
+arrival-time components per sensor: C for the direct light
+(``track_direct.DIRECT_COMPONENTS``, each moment-matched to a run of the quadrature's
+nodes), then per kind of last vertex (bulk scatter, surface) one per bounce order,
+exponentially modified (``_skewed_indirect``: scattered light starts no earlier than
+direct light can arrive, and trails off); in a scintillator, its isotropic scintillation
+light (``emission.ScintillationModel``) through the same quadrature and rays, each of its
+components split into one exponentially modified component per decay time. The sensor
+response (``response.expected_response``) then applies efficiencies, offsets and the
+transit-time spread. Lengths m, times ns, energies MeV.
 """
 
 from __future__ import annotations
@@ -38,12 +39,12 @@ from .track_rays import TrackEmitter, kernel_width
 def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, spectral,
                        key=None, reference=None, scintillation=None, *, shape, config):
     """The ``SensorLight`` of one track (a ``Track`` of one particle, leaves of the
-    computation's dtype): (N, C + n_bounces) p.e. of sensors of efficiency 1 (C direct
-    components, ``track_direct.DIRECT_COMPONENTS``, then by the order of the last
-    vertex, the indirect ones with exponential tails: ``_skewed_indirect``), with mean
-    arrival times, variances and decay times (ns, ns^2, ns). ``spectral``: the sensor's
-    mean relative spectral response over the emitted spectrum
-    (``cherenkov_spectral_factor``), which scales the QE at the reference wavelength;
+    computation's dtype): (N, C + 2 n_bounces) p.e. of sensors of efficiency 1 (C direct
+    components, ``track_direct.DIRECT_COMPONENTS``, then by the kind of the last vertex
+    (bulk scatter, surface) and its order, the indirect ones with exponential tails:
+    ``_skewed_indirect``), with mean arrival times, variances and decay times (ns, ns^2,
+    ns). ``spectral``: the sensor's mean relative spectral response over the emitted
+    spectrum (``cherenkov_spectral_factor``), which scales the QE at the reference wavelength;
     ``key`` fixes the rays (None: ``jax.random.key(0)``); ``shape`` and ``config``
     static; ``reference``: the track that fixes the indirect light's rays
     (``track_rays``; None: the track itself, held fixed). ``scintillation``: None, or
@@ -139,10 +140,10 @@ SCINTILLATION_COMPONENTS = DIRECT_COMPONENTS // 2 + 1
 
 def _emitted_light(sensors, params, track, direction, length, emission, rays_emission,
                    rays_from, key, *, shape, config):
-    """(charge, mean, variance) (N, C + n_bounces) of the light of one emission slice
-    (direct components, then by bounce order), the residual weight of its rays and
-    the sensors' mean direct arrival time (N,) ns (the time of light from the track's
-    start where there is no direct light)."""
+    """(charge, mean, variance) (N, C + 2 n_bounces) of the light of one emission slice
+    (direct components, then by kind of last vertex and bounce order), the residual
+    weight of its rays and the sensors' mean direct arrival time (N,) ns (the time of
+    light from the track's start where there is no direct light)."""
     charge, mean, variance = track_direct_light(sensors, params, track.position, direction,
                                                 track.time, emission, length)
     total = jnp.sum(charge, axis=1)
@@ -155,14 +156,17 @@ def _emitted_light(sensors, params, track, direction, length, emission, rays_emi
                            rays_emission, spread=kernel_width(shape))  # held fixed
     indirect = indirect_light_jit(sensors, params, emitter, start, key, shape=shape,
                                   config=config)
-    charges = jnp.concatenate([charge, indirect.charge.T], axis=1)  # (N, C + n_bounces)
-    means = jnp.concatenate([mean, indirect.time_mean.T], axis=1)
-    variances = jnp.concatenate([variance, indirect.time_variance.T], axis=1)
+    # (N, C + 2 n_bounces): the direct components, then by the kind of the last vertex
+    # (bulk scatter, surface) and its order
+    by_kind = [x.reshape(-1, x.shape[-1]).T for x in
+               (indirect.kind_charge, indirect.kind_time_mean, indirect.kind_time_variance)]
+    charges, means, variances = (jnp.concatenate([a, b], axis=1) for a, b in
+                                 zip((charge, mean, variance), by_kind, strict=True))
     return charges, means, variances, indirect.residual_weight, start
 
 
 def _decayed(charge, mean, variance, decay_times, decay_weights):
-    """The scintillation light's components (N, C + n_bounces) merged into
+    """The scintillation light's components (N, C + 2 n_bounces) merged into
     ``SCINTILLATION_COMPONENTS`` (moment-matched), each split into one exponentially
     modified component per decay time: (charge, mean, variance, tau) (N, 3 x ...)."""
     pairs = [mixed_moments(charge[:, k:k + 2], mean[:, k:k + 2], variance[:, k:k + 2], axis=1)
