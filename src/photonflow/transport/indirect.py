@@ -90,6 +90,10 @@ from .optics import TransportConfig, travel_time
 from .rays import emitted_rays, residual_weight, trace, vertex_step
 from .specular_probes import source_probes, specular_probes
 
+#: Share of an order's light below which its surface part (the total minus the scattered
+#: part) is taken as none.
+SURFACE_FLOOR = 1e-3
+
 
 @pytree_dataclass
 class IndirectLight:
@@ -211,11 +215,6 @@ def indirect_light_jit(
         charge=charge, time_mean=mean, time_variance=variance, residual_weight=residual,
         kind_charge=kinds[0], kind_time_mean=kinds[1], kind_time_variance=kinds[2],
     )
-
-
-#: Share of an order's light below which its surface part (the total minus the scattered
-#: part) is taken as none.
-SURFACE_FLOOR = 1e-3
 
 
 def _nee_parts(params, sensors: Sensors, config, reference_time, *vertex_data):

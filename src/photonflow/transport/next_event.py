@@ -153,9 +153,7 @@ def next_event_sums(
     own = own_disc[:, None] == jnp.arange(n, dtype=own_disc.dtype)
     contribution = where(own, 0.0, contribution)
     relative = time[:, None] + travel_time(distance, params) - reference
-    scattered = where((kind == SCATTER)[:, None], contribution, 0.0)
-    return tuple(jnp.sum(c * power, axis=0) for c in (contribution, scattered)
-                 for power in (1.0, relative, relative * relative))
+    return tuple(jnp.sum(c, axis=0) for c in _weighted_by_time(contribution, relative, kind))
 
 
 def near_correction_sums(
@@ -186,11 +184,20 @@ def near_correction_sums(
     delta = where(seen & ~left_out, exact - far_solid_angle(distance, cos_in, radius), 0.0)
     contribution = weight[:, None] * factor * delta
     relative = time[:, None] + travel_time(distance, params) - reference[index]
-    scattered = where((kind == SCATTER)[:, None], contribution, 0.0)
     zeros = jnp.zeros(n, dtype=contribution.dtype)
     flat = index.reshape(-1)
-    return tuple(zeros.at[flat].add((c * power).reshape(-1)) for c in (contribution, scattered)
-                 for power in (1.0, relative, relative * relative))
+    return tuple(zeros.at[flat].add(c.reshape(-1))
+                 for c in _weighted_by_time(contribution, relative, kind))
+
+
+def _weighted_by_time(contribution, relative, kind):
+    """The ``NEE_SUMS`` summands of (R, ...) pair contributions c with times t relative
+    to the reference (ns): c, c t, c t^2, then the same of the rows whose vertex
+    ``kind`` (R,) is SCATTER."""
+    scattered = where((kind == SCATTER).reshape((-1,) + (1,) * (contribution.ndim - 1)),
+                      contribution, 0.0)
+    return tuple(x for c in (contribution, scattered)
+                 for x in (c, c * relative, c * relative * relative))
 
 
 def nee_in_blocks(nee_block, n: int, dtype, vertex_data):
