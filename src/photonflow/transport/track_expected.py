@@ -8,8 +8,8 @@ and reflected, by bounce order) from the weighted rays of ``indirect.py`` leavin
 track (``track_rays.TrackEmitter``: their geometry fixed by a reference track, so the
 indirect light is smooth in the track). The light is a mixture of C + 2 n_bounces
 arrival-time components per sensor: C for the direct light
-(``track_direct.DIRECT_COMPONENTS``, each moment-matched to a run of the quadrature's
-nodes), then per kind of last vertex (bulk scatter, surface) one per bounce order,
+(``track_direct.DIRECT_COMPONENTS``, each moment-matched to the light of a stretch of
+the track), then per kind of last vertex (bulk scatter, surface) one per bounce order,
 exponentially modified (``_skewed_indirect``: scattered light starts no earlier than
 direct light can arrive, and trails off); in a scintillator, its isotropic scintillation
 light (``emission.ScintillationModel``) through the same quadrature and rays, each of its
