@@ -69,11 +69,23 @@ def first_hits(detector, params, track, index, light, rng):
     return first, np.asarray(tally.n_pe)
 
 
+def _describe(detector, track) -> str:
+    """The detector and track a hits file holds events of (its ``sampled`` entry)."""
+    return (f"{detector.name} {track.particle} {float(track.energy):g} MeV from "
+            f"{np.round(np.asarray(track.position, float), 6).tolist()} along "
+            f"{np.round(np.asarray(track.direction, float), 6).tolist()}")
+
+
 def sampled_hits(detector, params, track, events, path=None):
     """The (first times, counts) of ``events`` sampled events, from the npz file ``path``
-    if it exists (written there otherwise)."""
+    if it exists and holds at least as many events of this detector and track (an
+    error otherwise), written there otherwise."""
     if path is not None and Path(path).exists():
         with np.load(path) as saved:
+            held = str(saved["sampled"]) if "sampled" in saved else "an unrecorded track"
+            if held != _describe(detector, track) or saved["first"].shape[0] < events:
+                raise SystemExit(f"error: {path} holds {saved['first'].shape[0]} events of "
+                                 f"{held}, not {events} of {_describe(detector, track)}")
             return list(zip(saved["first"][:events], saved["count"][:events], strict=True))
     light = track_light(detector)
     rng = np.random.default_rng(3)
@@ -81,7 +93,8 @@ def sampled_hits(detector, params, track, events, path=None):
             for i in with_progress(range(events), "sampled events", show=True)]
     if path is not None:
         np.savez_compressed(path, first=np.stack([h[0] for h in hits]),
-                            count=np.stack([h[1] for h in hits]))
+                            count=np.stack([h[1] for h in hits]),
+                            sampled=_describe(detector, track))
     return hits
 
 
@@ -127,7 +140,7 @@ def main() -> None:
     parser.add_argument("--overdispersion", type=float, default=0.0)
     parser.add_argument("--hits", default=None,
                         help="npz file of the sampled first hits: read if it exists "
-                             "(same settings), else written")
+                             "(refused if of another detector or track), else written")
     args = parser.parse_args()
     detector = pf.load_detector(args.detector)
     base = pf.default_params(detector)
