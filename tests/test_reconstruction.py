@@ -173,7 +173,7 @@ def test_a_noise_free_event_is_recovered_exactly(toy):
     skewed; 0.6 cm, 0.3 degree, 2.0 % measured, the energy ~1 sigma of its error of
     2.2 %: where in that flat direction the minimum of mean-valued hits lies moves with
     details of the arrival-time components that change the first-hit distributions by
-    < 1e-4, from 1.3 % when the direct light's components were runs of panels)."""
+    < 1e-4)."""
     detector, params = toy
     event = noise_free_event(detector, params, TRUTH)
     tight = RecoSettings(fits=1, scan_directions=2, tolerance=1e-4)

@@ -167,7 +167,7 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
     near = min(NEAR_SENSORS, count // NEAR_SHARE)
     if near <= 0:
         return light(sensors.positions, sensors.normals, sensors.radius, breaks=PANEL_BREAKS)
-    # the sensors nearest the track's light and their sub-discs, in one pass with the rest
+    # the sensors nearest the track's light: their sub-discs get all the fixed breaks
     offset = sensors.positions - position
     along = jnp.clip(offset @ direction, 0.0, extent)
     across = offset - along[:, None] * direction
