@@ -310,7 +310,7 @@ def _disc_light(positions, normals, radius, *, params, position, direction, time
     bounds = emission.fraction[np.arange(1, DIRECT_COMPONENTS) * knots // DIRECT_COMPONENTS]
     stretch = jnp.sum(s[..., None] > bounds * emission.extent, axis=-1)  # (N, M)
     member = stretch[..., None] == jnp.arange(DIRECT_COMPONENTS)  # (N, M, C)
-    grouped = [where(member, x[..., None], 0.0)
-               for x in (light, arrival, jnp.broadcast_to(offset_variance, light.shape))]
-    charge, mean, variance = mixed_moments(*grouped, axis=1)  # (N, C) each
+    charge, mean, variance = mixed_moments(  # (N, C) each; the other nodes weigh 0
+        where(member, light[..., None], 0.0), arrival[..., None],
+        jnp.broadcast_to(offset_variance, light.shape)[..., None], axis=1)
     return charge, reference[:, None] + mean, variance
