@@ -75,6 +75,8 @@ START_SHARES = (0.0, 0.35, 0.7)
 SCAN_SHARE = 0.35
 #: Energy (MeV) of the prediction that seeds the energy from the total charge.
 REFERENCE_ENERGY = {"mu-": 1000.0, "e-": 500.0}
+#: Predictions of the seed's total charge, each at the last energy estimate.
+ENERGY_PASSES = 3
 
 
 def sphere_directions(count: int) -> np.ndarray:
@@ -336,11 +338,15 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
     frame = fit_frame(detector.shape, direction, model.energy_range, particle,
                       settings.margin, dtype)
     reference_energy = REFERENCE_ENERGY[particle]
-    probe = Track(particle, frame_inside(frame, vertex), direction, reference_energy,
-                  float(seed.time))
     observed = float(jnp.sum(data.charge)) - _dark_total(detector, data, functions)
-    predicted = float(functions.total_charge(cast_track(probe, dtype), data))
-    energy = energy_from_charge(model, observed, predicted, reference_energy)
+    energy = reference_energy
+    for _ in range(ENERGY_PASSES):
+        # the charge of a track that leaves the detector grows slower than its yield:
+        # the estimate is refined from a prediction at the last one
+        probe = Track(particle, frame_inside(frame, vertex), direction, energy,
+                      float(seed.time))
+        predicted = float(functions.total_charge(cast_track(probe, dtype), data))
+        energy = energy_from_charge(model, observed, predicted, energy)
     extent = float(model.at(energy).extent)
     candidates = [(axis, share) for axis in (direction, -direction) for share in START_SHARES]
     candidates = [(vertex, axis, share) for axis, share in candidates]
