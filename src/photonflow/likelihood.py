@@ -39,8 +39,6 @@ r = 0 is the Poisson model above, computed by the same code as without the optio
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -59,6 +57,7 @@ from .charge_model import (  # noqa: F401  (re-exported: the likelihood's charge
     log_no_photoelectron,
 )
 from .errors import ConfigError
+from .inline_jit import inline_jit
 from .io.events import Event
 from .numerics import clip, strict_array, where
 from .params import Params
@@ -215,8 +214,7 @@ def _dense_arguments(prediction: Prediction, event: Event, params, window) -> tu
     return prediction, hit, q, t, dark_rate, spe_width, window
 
 
-@functools.partial(jax.jit, static_argnames=("window", "charge_threshold", "use_time",
-                                             "overdispersion"))
+@inline_jit(static_argnames=("window", "charge_threshold", "use_time", "overdispersion"))
 def dense_sensor_nll(
     prediction: Prediction,
     hit: jax.Array,
@@ -304,7 +302,7 @@ def _summed_sensor_nll(*arguments, **options) -> jax.Array:
 #: ``dense_sensor_nll`` summed over sensors (scalar) in one jitted program, with no eager
 #: reduction after it; arguments and units as for ``dense_sensor_nll`` (the window, the
 #: seventh, static).
-dense_nll = jax.jit(
+dense_nll = inline_jit(
     _summed_sensor_nll, static_argnums=(6,),
     static_argnames=("charge_threshold", "use_time", "overdispersion"),
 )

@@ -10,11 +10,10 @@ nearly-equal hit coordinates.
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 
+from ..inline_jit import inline_jit
 from ..numerics import where
 from .detector import Detector
 from .shapes import Shape
@@ -63,7 +62,7 @@ def _first_disc_hit(origin, direction, centres, normals, radii):
     return where(jnp.isfinite(distance), index, -1).astype(jnp.int32), distance
 
 
-@functools.partial(jax.jit, static_argnames=("batch_size",))
+@inline_jit(static_argnames=("batch_size",))
 def ray_sensor_hits(
     origins, directions, sensor_positions, sensor_normals, sensor_radius, batch_size: int = 256
 ):

@@ -37,13 +37,13 @@ poles of dphi and of float32 cancellation.
 
 from __future__ import annotations
 
-import functools
 import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..inline_jit import inline_jit
 from ..numerics import clip, where
 
 #: Default number of rim nodes of the trapezoid rule.
@@ -83,7 +83,7 @@ def _flat_discs(point, centre, normal, radius):
     return point, centre, normal, radius, batch
 
 
-@functools.partial(jax.jit, static_argnames=("n_nodes",))
+@inline_jit(static_argnames=("n_nodes",))
 def disc_solid_angle(point, centre, normal, radius, n_nodes: int = DEFAULT_NODES):
     """Solid angle (sr) of a flat disc seen from a point.
 
@@ -129,7 +129,7 @@ def versine(angle):
     return 2.0 * jnp.sin(0.5 * angle) ** 2
 
 
-@functools.partial(jax.jit, static_argnames=("n_nodes",))
+@inline_jit(static_argnames=("n_nodes",))
 def disc_cosine_moment(point, axis, centre, normal, radius, n_nodes: int = DEFAULT_NODES):
     """Integral of cos(theta) over the solid angle of a flat disc seen from a point, sr.
 
@@ -209,7 +209,7 @@ def _gauss_legendre(n_nodes: int, dtype):
     return jnp.asarray(0.5 * (nodes + 1.0), dtype), jnp.asarray(0.5 * weights, dtype)
 
 
-@functools.partial(jax.jit, static_argnames=("n_intervals", "n_gauss"))
+@inline_jit(static_argnames=("n_intervals", "n_gauss"))
 def disc_cone_solid_angle(
     point,
     axis,

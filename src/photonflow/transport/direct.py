@@ -32,6 +32,7 @@ import jax.numpy as jnp
 from ..constants import SPEED_OF_LIGHT
 from ..geometry.detector import Detector
 from ..geometry.sensor_arrays import Sensors, sensors_for
+from ..inline_jit import inline_jit
 from ..numerics import strict_array, where
 from ..params import Params
 from ..response.detection import acceptance_at_cos
@@ -71,7 +72,7 @@ def direct_light(detector: Detector, params: Params, source):
     return direct_light_jit(bare, params, jax.tree.map(cast, source))
 
 
-@jax.jit
+@inline_jit
 def direct_light_jit(sensors: Sensors, params: Params, source):
     """``direct_light`` on arrays: the detector's ``Sensors``, ``params`` and ``source``
     of one float dtype. Returns (mu p.e. at efficiency 1, time ns before offsets)."""

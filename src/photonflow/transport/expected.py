@@ -35,6 +35,7 @@ from ..generator import Track
 from ..geometry.detector import Detector
 from ..geometry.sensor_arrays import Sensors, sensors_for
 from ..geometry.sensor_grid import SensorGrid
+from ..inline_jit import inline_jit
 from ..numerics import default_float_dtype, strict_array, where
 from ..params import Params, validate_params
 from ..prediction import Prediction
@@ -218,7 +219,7 @@ def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
 _PREDICTORS: WeakKeyDictionary = WeakKeyDictionary()
 
 
-@functools.partial(jax.jit, static_argnames=("shape", "config"))
+@inline_jit(static_argnames=("shape", "config"))
 def expected_jit(sensors: Sensors, params, source, key=None, mirror=None, *, shape, config):
     """``expected`` on arrays: the detector's ``Sensors``, ``params`` and ``source`` of
     one float dtype, a ``jax.random`` key (None: ``jax.random.key(0)``) and the source's

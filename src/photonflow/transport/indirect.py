@@ -81,6 +81,7 @@ from ..geometry.detector import Detector
 from ..geometry.sensor_arrays import Sensors, sensors_for
 from ..geometry.sensor_grid import SensorGrid
 from ..geometry.shapes import Shape
+from ..inline_jit import inline_jit
 from ..numerics import strict_array, where
 from ..params import Params
 from ..pytree import pytree_dataclass
@@ -135,7 +136,7 @@ def _moments(total, reference_time) -> tuple:
     return charge, mean + reference_time, variance
 
 
-@functools.partial(jax.jit, static_argnames=("shape", "config"))
+@inline_jit(static_argnames=("shape", "config"))
 def indirect_light_jit(
     sensors: Sensors,
     params: Params,

@@ -20,14 +20,13 @@ transit-time spread. Lengths m, times ns, energies MeV.
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 
 from ..constants import SPEED_OF_LIGHT
 from ..emission import SplineEmission
 from ..geometry.sensor_arrays import Sensors
+from ..inline_jit import inline_jit
 from ..numerics import safe_sqrt, where
 from ..prediction import Prediction
 from ..response.expected import SensorLight, expected_response
@@ -194,7 +193,7 @@ def _inside_length(shape, position, direction):
     return jnp.where(jnp.isfinite(exit_distance), jnp.maximum(exit_distance, 0.0), 1e9)
 
 
-@functools.partial(jax.jit, static_argnames=("shape", "config"))
+@inline_jit(static_argnames=("shape", "config"))
 def track_expected_jit(sensors: Sensors, params, track, model: SplineEmission, spectral,
                        key=None, reference=None, scintillation=None, *, shape,
                        config) -> Prediction:
