@@ -176,7 +176,10 @@ def test_a_noise_free_event_is_recovered_exactly(toy):
     < 1e-4)."""
     detector, params = toy
     event = noise_free_event(detector, params, TRUTH)
-    tight = RecoSettings(fits=1, scan_directions=2, tolerance=1e-4)
+    # two fits (the default): a single fit from either of the two likeliest starts can
+    # end in a shallow local minimum 2.8 units above this one (8.7 cm and +4.6 % away;
+    # two of the four such fits seen, float32 rounding deciding which)
+    tight = RecoSettings(fits=2, scan_directions=2, tolerance=1e-4)
     minimum = reconstruct(detector, params, event, "mu-", config=CONFIG, settings=tight,
                           start=TRUTH)
     seeded = reconstruct(detector, params, event, "mu-", config=CONFIG, settings=tight)
