@@ -342,9 +342,11 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
     energy = reference_energy
     for _ in range(ENERGY_PASSES):
         # the charge of a track that leaves the detector grows slower than its yield:
-        # the estimate is refined from a prediction at the last one
-        probe = Track(particle, frame_inside(frame, vertex), direction, energy,
-                      float(seed.time))
+        # the estimate is refined from a prediction at the last one, of a track from
+        # the middle start behind the point-source vertex
+        behind = SCAN_SHARE * float(model.at(energy).extent)
+        probe = Track(particle, frame_inside(frame, vertex - behind * direction), direction,
+                      energy, float(seed.time) - behind / SPEED_OF_LIGHT)
         predicted = float(functions.total_charge(cast_track(probe, dtype), data))
         energy = energy_from_charge(model, observed, predicted, energy)
     extent = float(model.at(energy).extent)

@@ -13,8 +13,8 @@
    mean of the unit vectors to the hit sensors whose residual is within ``PROMPT`` ns.
 3. Energy: from the total charge (``energy_from_charge``: the expected total of a
    prediction at a reference energy, scaled by the emission model's yield; ``reconstruct``
-   repeats it from a prediction at each estimate, since the charge of a track that
-   leaves the detector grows slower than its yield).
+   repeats it from a prediction at each estimate, of a track from behind the vertex,
+   since the charge of a track that leaves the detector grows slower than its yield).
 Lengths m, times ns, energies MeV.
 """
 
