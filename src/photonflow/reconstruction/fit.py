@@ -337,18 +337,7 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
     vertex = np.asarray(seed.vertex, np.float64)
     frame = fit_frame(detector.shape, direction, model.energy_range, particle,
                       settings.margin, dtype)
-    reference_energy = REFERENCE_ENERGY[particle]
-    observed = float(jnp.sum(data.charge)) - _dark_total(detector, data, functions)
-    energy = reference_energy
-    for _ in range(ENERGY_PASSES):
-        # the charge of a track that leaves the detector grows slower than its yield:
-        # the estimate is refined from a prediction at the last one, of a track from
-        # the middle start behind the point-source vertex
-        behind = SCAN_SHARE * float(model.at(energy).extent)
-        probe = Track(particle, frame_inside(frame, vertex - behind * direction), direction,
-                      energy, float(seed.time) - behind / SPEED_OF_LIGHT)
-        predicted = float(functions.total_charge(cast_track(probe, dtype), data))
-        energy = energy_from_charge(model, observed, predicted, energy)
+    energy = seed_energy(functions, detector, data, frame, seed, particle)
     extent = float(model.at(energy).extent)
     candidates = [(axis, share) for axis in (direction, -direction) for share in START_SHARES]
     candidates = [(vertex, axis, share) for axis, share in candidates]
@@ -379,6 +368,27 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
     return dataclasses.replace(best, seconds=clock.perf_counter() - began,
                                iterations=sum(f.iterations for f in fits),
                                evaluations=sum(f.evaluations for f in fits) + len(starts) + 1)
+
+
+def seed_energy(functions, detector, data, frame, seed, particle: str) -> float:
+    """Kinetic energy (MeV) of ``particle`` seeded from the event's total charge less the
+    dark noise's (``data``, with its emission model): ``energy_from_charge`` from a
+    prediction at ``REFERENCE_ENERGY``, then ``ENERGY_PASSES - 1`` times from one at the
+    last estimate (the charge of a track that leaves the detector grows slower than its
+    yield), each of a track along the seeded direction from the middle start behind
+    the point-source vertex (``SCAN_SHARE``; ``frame`` keeps it inside)."""
+    model, dtype = data.emission, data.charge.dtype
+    direction = np.asarray(seed.direction, np.float64)
+    vertex = np.asarray(seed.vertex, np.float64)
+    observed = float(jnp.sum(data.charge)) - _dark_total(detector, data, functions)
+    energy = REFERENCE_ENERGY[particle]
+    for _ in range(ENERGY_PASSES):
+        behind = SCAN_SHARE * float(model.at(energy).extent)
+        probe = Track(particle, frame_inside(frame, vertex - behind * direction), direction,
+                      energy, float(seed.time) - behind / SPEED_OF_LIGHT)
+        predicted = float(functions.total_charge(cast_track(probe, dtype), data))
+        energy = energy_from_charge(model, observed, predicted, energy)
+    return energy
 
 
 def frame_inside(frame, vertex) -> np.ndarray:
