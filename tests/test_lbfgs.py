@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from photonflow.lbfgs import ARMIJO, lbfgs_direction, lbfgs_step
+from photonflow.lbfgs import ARMIJO, lbfgs_direction, lbfgs_step, shrink_factor
 
 
 def rosenbrock(x):
@@ -48,8 +49,9 @@ def test_an_ill_conditioned_quadratic_is_minimised_in_few_steps():
 
 
 def test_the_search_backs_out_of_a_region_where_the_objective_is_not_finite():
-    """Beyond x = 0.5 the objective is NaN: the step lengths halve until the trial point
-    is finite and lowers it by the Armijo condition."""
+    """Beyond x = 0.5 the objective is NaN: the step lengths shrink (by halves, with no
+    finite value to fit) until the trial point is finite and lowers it by the Armijo
+    condition."""
     def fenced(x):
         if x[0] > 0.5:
             return float("nan"), np.full(1, np.nan)
@@ -78,3 +80,49 @@ def test_a_pair_of_negative_curvature_is_not_kept_and_no_decrease_is_reported():
     step = lbfgs_step(flat, np.zeros(1), 0.0, np.ones(1), max_halvings=5)
     assert not step.accepted and step.evaluations == 5
     np.testing.assert_array_equal(step.point, np.zeros(1))
+
+
+def test_a_rejected_step_shrinks_to_the_minimum_of_the_fitted_cubic():
+    """Along a quadratic (x - 0.3)^2 from 0 with a unit trial step, the cubic through both
+    ends' values and slopes is the quadratic itself: the next step length is 0.3. On
+    x^3 - x from 0 with a trial step of 2 it is the cubic, minimal at 1/sqrt(3) (a
+    factor 0.2887). Factors are clamped to [0.1, 0.5]: a halving when the cubic's
+    minimum lies beyond half the step, a tenth when it lies very close to 0, a halving
+    when the trial value is not finite."""
+    assert shrink_factor(0.09, -0.6, 1.0, 0.49, 1.4) == pytest.approx(0.3, rel=1e-12)
+    assert shrink_factor(0.0, -1.0, 2.0, 6.0, 11.0) == pytest.approx(
+        1.0 / np.sqrt(3.0) / 2.0, rel=1e-12)
+    # (x - 0.9)^2 from 0, trial step 1: minimum at 0.9 of the step, beyond half
+    assert shrink_factor(0.81, -1.8, 1.0, 0.01, 0.2) == 0.5
+    # (x - 0.01)^2: minimum at 0.01 of the step
+    assert shrink_factor(1e-4, -0.02, 1.0, 0.9801, 1.98) == 0.1
+    assert shrink_factor(0.0, -1.0, 1.0, float("nan"), float("nan")) == 0.5
+
+
+def test_a_search_stops_where_no_step_could_lower_the_objective_by_min_decrease():
+    """At a point whose full step promises a first-order decrease of 1e-3 (slope -1e-3 at
+    unit length), a search with min_decrease = 1e-2 evaluates nothing; with 1e-4 it
+    evaluates and takes the step; on the flat function of the test above it stops after
+    the one trial whose promised decrease is above min_decrease."""
+    def quadratic(x):
+        return float(0.5 * x @ x), x.copy()
+
+    point = np.array([1e-3 ** 0.5])  # gradient norm^2 = 1e-3: slope -1e-3 along -g
+    value, gradient = quadratic(point)
+    calls = []
+
+    def counted(x):
+        calls.append(x)
+        return quadratic(x)
+
+    step = lbfgs_step(counted, point, value, gradient, min_decrease=1e-2)
+    assert not step.accepted and step.evaluations == 0 and not calls
+    step = lbfgs_step(counted, point, value, gradient, min_decrease=1e-4)
+    assert step.accepted and step.value < value
+
+    def flat(x):
+        return 0.0, np.ones(1)
+
+    step = lbfgs_step(flat, np.zeros(1), 0.0, np.ones(1), min_decrease=0.6)
+    # the unit step promises 1 and is tried; a shrink by at most 0.5 promises < 0.6
+    assert not step.accepted and step.evaluations == 1

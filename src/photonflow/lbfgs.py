@@ -1,6 +1,8 @@
 """Limited-memory BFGS steps driven from the host, for objectives whose value and gradient
 come from one jitted program: the two-loop recursion over the kept (step, gradient
-change) pairs and an Armijo backtracking line search, on flat float64 vectors.
+change) pairs and an Armijo backtracking line search (each shrink from the cubic
+through the values and slopes at both ends of the rejected step), on flat float64
+vectors.
 
 Written here rather than taken from ``optax.lbfgs`` because that runs its zoom line
 search inside the jitted step, which traces the objective's value and gradient three
@@ -68,12 +70,16 @@ def lbfgs_direction(gradient: np.ndarray, pairs) -> np.ndarray:
 
 
 def lbfgs_step(value_and_grad: Callable, point, value: float, gradient, pairs=(),
-               memory: int = 10, max_halvings: int = 30) -> LBFGSStep:
+               memory: int = 10, max_halvings: int = 30,
+               min_decrease: float = 0.0) -> LBFGSStep:
     """One L-BFGS step from ``point`` (whose objective ``value`` and ``gradient`` are
     known): along ``lbfgs_direction`` (the steepest descent if that does not descend),
-    the first of the step lengths 1, 1/2, 1/4, ... (at most ``max_halvings``) with a
-    finite value of sufficient decrease (``ARMIJO``) is taken, and its pair is kept
-    among the newest ``memory`` when its curvature is positive.
+    the first of the shrinking step lengths 1, ... (at most ``max_halvings`` trials, each
+    shrink by ``shrink_factor``) with a finite value of sufficient decrease (``ARMIJO``)
+    is taken, and its pair is kept among the newest ``memory`` when its curvature is
+    positive. The search gives up (no step accepted) once a step's first-order decrease
+    -slope x length falls below ``min_decrease`` (units of the objective): at a minimum
+    within that, shorter steps only spend evaluations.
 
     ``value_and_grad(x)``: the objective's value (float) and gradient (array) at a flat
     float64 point ``x``; a non-finite value counts as no decrease.
@@ -86,14 +92,38 @@ def lbfgs_step(value_and_grad: Callable, point, value: float, gradient, pairs=()
         direction, slope = -gradient, -float(gradient @ gradient)
     scale = 1.0
     for trial in range(1, max_halvings + 1):
+        if -scale * slope < min_decrease:
+            return LBFGSStep(point, value, gradient, tuple(pairs), trial - 1, False)
         candidate = point + scale * direction
         new_value, new_gradient = value_and_grad(candidate)
         new_value = float(new_value)
+        new_gradient = np.asarray(new_gradient, np.float64)
         if np.isfinite(new_value) and new_value <= value + ARMIJO * scale * slope:
-            new_gradient = np.asarray(new_gradient, np.float64)
             s, y = candidate - point, new_gradient - gradient
             kept = (tuple(pairs) + ((s, y),))[-memory:] if s @ y > MIN_CURVATURE else \
                 tuple(pairs)
             return LBFGSStep(candidate, new_value, new_gradient, kept, trial, True)
-        scale *= 0.5
+        scale *= shrink_factor(value, slope, scale, new_value, new_gradient @ direction)
     return LBFGSStep(point, value, gradient, tuple(pairs), max_halvings, False)
+
+
+def shrink_factor(value: float, slope: float, scale: float, trial_value: float,
+                  trial_slope: float) -> float:
+    """The factor, in [0.1, 0.5], by which a rejected step length ``scale`` shrinks: the
+    minimum of the cubic through the value and slope at 0 (``value``, ``slope`` < 0) and
+    at ``scale`` (``trial_value``, ``trial_slope``, both along the direction), clamped;
+    0.5 (a halving) where the trial point is not finite or the cubic has no minimum."""
+    if not (np.isfinite(trial_value) and np.isfinite(trial_slope)):
+        return 0.5
+    # the cubic in t = step / scale: c(t) = value + a1 t + a2 t^2 + a3 t^3
+    a1 = slope * scale
+    b1 = trial_slope * scale
+    difference = trial_value - value
+    a3 = a1 + b1 - 2.0 * difference
+    a2 = difference - a1 - a3
+    if abs(a3) < 1e-12 * max(abs(a2), 1e-300):
+        t = -a1 / (2.0 * a2) if a2 > 0 else 0.5
+    else:
+        discriminant = a2 * a2 - 3.0 * a3 * a1
+        t = (-a2 + np.sqrt(discriminant)) / (3.0 * a3) if discriminant >= 0 else 0.5
+    return float(np.clip(t, 0.1, 0.5)) if np.isfinite(t) else 0.5

@@ -52,6 +52,11 @@ def _concrete(track: Track) -> Track:
                  float(track.energy), float(track.time))
 
 
+#: A line search stops once a step could lower the likelihood by less than this share of
+#: ``RecoSettings.tolerance`` (``lbfgs_step``'s ``min_decrease``).
+MIN_DECREASE = 0.1
+
+
 def minimise_gradient(functions, detector, model, data, start, settings) -> RecoResult:
     """L-BFGS from ``start``, with reference refreshes (module docstring)."""
     dtype = data.charge.dtype
@@ -78,7 +83,8 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
             return _failure("the gradient is not finite", start, iterations)
         pairs, history, converged = (), [], False
         for _ in range(settings.max_iterations):
-            step = lbfgs_step(value_and_grad, free, value, gradient, pairs)
+            step = lbfgs_step(value_and_grad, free, value, gradient, pairs,
+                              min_decrease=MIN_DECREASE * settings.tolerance)
             iterations += 1
             evaluations += step.evaluations
             if not step.accepted and pairs:  # once more along the steepest descent
