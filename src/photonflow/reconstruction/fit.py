@@ -73,7 +73,7 @@ START_SHARES = (0.0, 0.35, 0.7)
 #: the sphere (the seeded direction can be far off in a small detector, where the
 #: point-source vertex falls near the wall).
 SCAN_SHARE = 0.35
-#: Energy (MeV) of the prediction that seeds the energy from the total charge.
+#: Energy (MeV) of the first prediction that seeds the energy from the total charge.
 REFERENCE_ENERGY = {"mu-": 1000.0, "e-": 500.0}
 #: Predictions of the seed's total charge, each at the last energy estimate.
 ENERGY_PASSES = 3
