@@ -5,7 +5,7 @@ traces it into a jaxpr of its own and, under ``grad``, linearises that jaxpr aga
 equation by equation. XLA inlines the nested program anyway, so under an outer ``jit``
 the boundary buys nothing and costs trace time. Measured on the toy cylinder's
 value-and-gradient of the expected mode's likelihood (2 bounces, probes, mirror
-quadrature): 10.6 s to trace with the nested programs, 6.6 s with them inlined; the
+quadrature): 10.6 s to trace with the nested programs, 5.9 s with them inlined; the
 same values. ``jax.jit(..., inline=True)`` still builds the nested jaxpr (8.1 s).
 
 JAX has no public "am I under a jit" test; ``inline_jit`` asks its private one where

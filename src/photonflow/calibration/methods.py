@@ -162,7 +162,8 @@ class LBFGS:
 
     Attributes:
         memory: number of (step, gradient change) pairs kept.
-        max_halvings: line-search halvings before giving up a step.
+        max_halvings: line-search trials (each shrinking the step by 0.1-0.5, as
+            ``lbfgs.shrink_factor`` says) before giving up a step.
     """
 
     steps_in_sigma: ClassVar[bool] = False
