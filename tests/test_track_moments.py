@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import photonflow as pf
-from photonflow.emission import emission_model
+from photonflow.emission import emission_model, moments
 from photonflow.geometry.sensor_arrays import sensors_for
 from photonflow.transport import track_direct, track_moments
 
@@ -19,13 +19,13 @@ def test_two_node_rule_integrates_cubics_exactly():
         x = np.linspace(0.0, 1.0, 200001)
         measures = [x**a * (1 - x) ** b for a, b in ((1, 1), (0.5, 3), (4, 0.3), (8, 8))]
         for density in measures:
-            moments = np.array([np.trapezoid(density * x**k, x) for k in range(4)])
-            nodes, weights = track_moments._gauss_nodes(jnp.asarray(moments[None]))
+            raw = np.array([np.trapezoid(density * x**k, x) for k in range(4)])
+            nodes, weights = track_moments._gauss_nodes(jnp.asarray(raw[None]))
             nodes, weights = np.asarray(nodes[0]), np.asarray(weights[0])
             assert np.all((nodes >= 0) & (nodes <= 1)) and np.all(weights > 0)
             for k in range(4):
-                np.testing.assert_allclose(moments[0] * np.sum(weights * nodes**k),
-                                           moments[k], rtol=1e-6)
+                np.testing.assert_allclose(raw[0] * np.sum(weights * nodes**k), raw[k],
+                                           rtol=1e-6)
 
 
 def test_energy_weights_are_local_and_exact_at_nodes_and_for_lines():
@@ -34,11 +34,11 @@ def test_energy_weights_are_local_and_exact_at_nodes_and_for_lines():
     with jax.enable_x64(True):
         nodes = jnp.log(jnp.asarray([10.0, 20.0, 35.0, 70.0, 100.0, 200.0]))
         for energy in (10.0, 27.0, 35.0, 99.0, 150.0, 200.0):
-            weights, index = track_moments._energy_terms(nodes, jnp.asarray(energy))
+            weights, index = moments._energy_terms(nodes, jnp.asarray(energy))
             assert abs(float(jnp.sum(weights)) - 1.0) < 1e-12
             line = 3.0 + 2.0 * nodes
             assert abs(float(weights @ line[index]) - (3.0 + 2.0 * np.log(energy))) < 1e-9
-        weights, index = track_moments._energy_terms(nodes, jnp.asarray(35.0))
+        weights, index = moments._energy_terms(nodes, jnp.asarray(35.0))
         np.testing.assert_allclose(np.asarray(weights)[np.asarray(index) == 2].sum(), 1.0,
                                    atol=1e-12)
 
@@ -51,8 +51,7 @@ def test_far_light_matches_the_quadrature_for_a_muon_in_sk():
     detector = pf.load_detector("SK")
     params = pf.default_params(detector)
     sensors = sensors_for(detector)
-    model = emission_model("mu-", "water")
-    table = track_moments.moment_table(model)
+    model = emission_model("mu-", "water", kind="tables")
     energy = jnp.asarray(1000.0, jnp.float32)
     emission = model.at(energy)
     position = jnp.zeros(3, jnp.float32)
@@ -63,10 +62,10 @@ def test_far_light_matches_the_quadrature_for_a_muon_in_sk():
         extent=emission.extent, breaks=track_direct.PANEL_BREAKS)
     expected, expected_time, _ = (np.asarray(x) for x in
                                   track_direct.mixed_moments(*quadrature, axis=1))
-    charge, mean, _ = (np.asarray(x) for x in track_moments.far_direct_light(
+    charge, mean, _ = (np.asarray(x[:, 0]) for x in track_moments.far_direct_light(
         sensors.positions, sensors.normals, sensors.radius, params=params,
-        position=position, direction=direction, time=0.0, table=table, energy=energy,
-        emission=emission, peak=track_direct.peak_cos(emission)))
+        position=position, direction=direction, time=0.0, emission=emission,
+        peak=track_direct.peak_cos(emission)))
     assert abs(charge.sum() / expected.sum() - 1.0) < 2e-3
     lit = expected > 1e-3 * expected.max()
     weight = expected[lit] / expected[lit].sum()

@@ -32,16 +32,19 @@ def threshold_energy(particle: str, medium: str) -> float:
                                      float(refractive_index(material, shortest))))
 
 
-#: The emission models, by the name ``TransportConfig.emission_model`` gives them.
-EMISSION_MODELS = ("spline", "siren")
+#: The emission models, by the name ``TransportConfig.emission_model`` gives them:
+#: "tables" is the spline model with its moment tables, from which the direct light of
+#: sensors seen from afar is read (``emission.moments``; faster, ``docs/tracks.md``).
+EMISSION_MODELS = ("spline", "siren", "tables")
 
 
 def emission_model(particle: str, medium: str = "water", dtype=None,
                    kind: str = "spline"):
     """The shipped emission model of ``particle`` in ``medium`` (arrays of ``dtype``,
     default JAX's default float), built once per process: ``kind`` "spline" (the
-    ``SplineEmission``, the default) or "siren" (the ``SirenEmission`` of the shipped
-    trained network; ``docs/tracks.md`` compares them).
+    ``SplineEmission``, the default), "siren" (the ``SirenEmission`` of the shipped
+    trained network; ``docs/tracks.md`` compares them) or "tables" (the spline model
+    with its moment tables, ``emission.moments.TabulatedEmission``; built in ~10-20 s).
 
     Raises:
         ConfigError: an unknown ``kind``, or no model ships for that particle and medium
@@ -54,6 +57,8 @@ def emission_model(particle: str, medium: str = "water", dtype=None,
     particle = SAME_LIGHT.get(particle, particle)
     if kind == "siren":
         return _siren(particle, medium, dtype.name)
+    if kind == "tables":
+        return _tabulated(particle, medium, dtype.name)
     return _model(particle, medium, dtype.name)
 
 
@@ -92,6 +97,13 @@ def _model(particle: str, medium: str, dtype_name: str) -> SplineEmission:
     table = shipped_table(particle, medium)
     with jax.ensure_compile_time_eval():  # built eagerly even when first asked in a trace
         return spline_emission(table, threshold_energy(particle, medium), np.dtype(dtype_name))
+
+
+@functools.cache
+def _tabulated(particle: str, medium: str, dtype_name: str):
+    from .moments import tabulated_emission
+
+    return tabulated_emission(_model(particle, medium, dtype_name))
 
 
 #: The shipped SIREN networks, by (particle, medium), in ``photonflow/data``.

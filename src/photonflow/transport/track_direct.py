@@ -160,36 +160,65 @@ def track_direct_light(sensors: Sensors, params, position, direction, time, emis
         start and variance 0.
     """
     extent = emission.extent if length is None else jnp.minimum(emission.extent, length)
-    light = functools.partial(_disc_light, params=params, position=position,
-                              direction=direction, time=time, emission=emission,
-                              extent=extent)
-    count = sensors.positions.shape[0]
-    near = min(NEAR_SENSORS, count // NEAR_SHARE)
+    light = disc_light_of(params, position, direction, time, emission, extent)
+    near = near_field_size(sensors)
     if near <= 0:
         return light(sensors.positions, sensors.normals, sensors.radius, breaks=PANEL_BREAKS)
-    # the sensors nearest the track's light: their sub-discs get all the fixed breaks
+    base = light(sensors.positions, sensors.normals, sensors.radius,
+                 breaks=_peak_breaks(emission, sensors.positions.dtype))
+    return refine_near_field(base, sensors, nearness(sensors, position, direction, extent),
+                             light, near)
+
+
+def disc_light_of(params, position, direction, time, emission, extent):
+    """``_disc_light`` of one track (extent m: where its light ends): a function of the
+    discs (centres (N, 3) m, normals (N, 3), radii (N,) m) and ``breaks``."""
+    return functools.partial(_disc_light, params=params, position=position,
+                             direction=direction, time=time, emission=emission, extent=extent)
+
+
+def near_field_size(sensors: Sensors) -> int:
+    """Number of discs refined by sub-discs (``NEAR_SENSORS``, at most one in
+    ``NEAR_SHARE``); 0 for a detector of fewer than ``NEAR_SHARE`` sensors."""
+    return min(NEAR_SENSORS, sensors.positions.shape[0] // NEAR_SHARE)
+
+
+def nearness(sensors: Sensors, position, direction, extent):
+    """(N,) each disc's angular radius r / d seen from the track's light (d: its distance
+    to the segment from the start to ``extent`` m along the track, at least r)."""
     offset = sensors.positions - position
     along = jnp.clip(offset @ direction, 0.0, extent)
     across = offset - along[:, None] * direction
     gap = safe_sqrt(jnp.sum(across * across, axis=1))
-    nearness = sensors.radius / jnp.maximum(gap, sensors.radius)
-    index, blend = _near_field(nearness, near)
+    return sensors.radius / jnp.maximum(gap, sensors.radius)
+
+
+def refine_near_field(base, sensors: Sensors, near_by, light, near: int):
+    """``base`` (charge, mean, variance) (N, C) of every disc with the ``near`` discs of
+    largest ``near_by`` (``nearness``) blended into their sub-discs' light (``light``:
+    ``disc_light_of``, on ``PANEL_BREAKS``) as their nearness rises (``_near_field``)."""
+    charge, mean, variance = base
+    index, blend = _near_field(near_by, near)
     offsets, scale = _sub_disc_offsets(sensors.normals[index], sensors.radius[index])
     subs = offsets.shape[1]
-    charge, mean, variance = light(sensors.positions, sensors.normals, sensors.radius,
-                                   breaks=_peak_breaks(emission, sensors.positions.dtype))
     sub = light((sensors.positions[index][:, None, :] + offsets).reshape(-1, 3),
                 jnp.repeat(sensors.normals[index], subs, axis=0),
                 jnp.repeat(sensors.radius[index] * scale, subs), breaks=PANEL_BREAKS)
     parts = [x.reshape(near, subs, -1) for x in sub]
     fine = mixed_moments(*parts, axis=1)
-    weights = jnp.stack([1.0 - blend, blend], axis=1)[:, :, None]
-    mixed = mixed_moments(jnp.stack([charge[index], fine[0]], axis=1) * weights,
-                   jnp.stack([mean[index], fine[1]], axis=1),
-                   jnp.stack([variance[index], fine[2]], axis=1), axis=1)
+    mixed = blended(charge[index], mean[index], variance[index], fine, blend)
     mean_near = where(mixed[0] > LIGHT_FLOOR, mixed[1], mean[index])
     return (charge.at[index].set(mixed[0]), mean.at[index].set(mean_near),
             variance.at[index].set(mixed[2]))
+
+
+def blended(charge, mean, variance, other, blend):
+    """Per component, the mixture of (charge, mean, variance) (K, C) with weight 1 -
+    ``blend`` (K,) and ``other`` (the same, weight ``blend``): moment-matched."""
+    weights = jnp.stack([1.0 - blend, blend], axis=1)[:, :, None]
+    return mixed_moments(jnp.stack([charge, other[0]], axis=1) * weights,
+                         jnp.stack([mean, other[1]], axis=1),
+                         jnp.stack([variance, other[2]], axis=1), axis=1)
 
 
 def _near_field(nearness, count: int):

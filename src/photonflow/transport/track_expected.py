@@ -25,6 +25,7 @@ import jax.numpy as jnp
 
 from ..constants import SPEED_OF_LIGHT
 from ..emission import SplineEmission
+from ..emission.moments import TabulatedSlice
 from ..geometry.sensor_arrays import Sensors
 from ..inline_jit import inline_jit
 from ..numerics import safe_sqrt, where
@@ -32,6 +33,7 @@ from ..prediction import Prediction
 from ..response.expected import SensorLight, expected_response
 from .indirect import indirect_light_jit
 from .track_direct import DIRECT_COMPONENTS, LIGHT_FLOOR, mixed_moments, track_direct_light
+from .track_moments import tabulated_direct_light
 from .track_rays import TrackEmitter, kernel_width
 
 
@@ -143,8 +145,10 @@ def _emitted_light(sensors, params, track, direction, length, emission, rays_emi
     (direct components, then by kind of last vertex and bounce order), the residual
     weight of its rays and the sensors' mean direct arrival time (N,) ns (the time of
     light from the track's start where there is no direct light)."""
-    charge, mean, variance = track_direct_light(sensors, params, track.position, direction,
-                                                track.time, emission, length)
+    direct = (tabulated_direct_light if isinstance(emission, TabulatedSlice)
+              else track_direct_light)
+    charge, mean, variance = direct(sensors, params, track.position, direction, track.time,
+                                    emission, length)
     total = jnp.sum(charge, axis=1)
     lit = total > LIGHT_FLOOR
     start = jnp.sum(charge * mean, axis=1) / where(lit, total, 1.0)
