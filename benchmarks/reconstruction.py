@@ -1,5 +1,5 @@
 """Reconstruction benchmark (issue 25): ``python benchmarks/reconstruction.py [--events N]
-[--minuit M] [--out FILE.jsonl]``.
+[--minuit M] [--out FILE.jsonl] [--fits F] [--emission-model spline|siren|tables]``.
 
 SK with the default parameters, 1 GeV muons from the generator and the sampled mode
 (vertices uniform at least 2 m inside the walls, isotropic directions, seed 7), each
@@ -43,20 +43,26 @@ def main() -> None:
     parser.add_argument("--events", type=int, default=5)
     parser.add_argument("--minuit", type=int, default=1)
     parser.add_argument("--out", default=None)
+    parser.add_argument("--fits", type=int, default=None,
+                        help="RecoSettings.fits (default: RecoSettings' own)")
+    parser.add_argument("--emission-model", default="spline",
+                        help="TransportConfig.emission_model: spline, siren or tables")
     args = parser.parse_args()
     import photonflow as pf
     from photonflow.benchmarking import machine_description
 
     detector = pf.load_detector("SK")
     params = pf.default_params(detector)
-    config = pf.TransportConfig(n_rays=1024)
+    config = pf.TransportConfig(n_rays=1024, emission_model=args.emission_model)
+    settings = pf.RecoSettings() if args.fits is None else pf.RecoSettings(fits=args.fits)
     out = open(args.out, "a") if args.out else None  # noqa: SIM115
     rows = []
     print(f"Machine: {machine_description()}", flush=True)
     for k, truth in enumerate(_truths(detector, args.events, 7)):
         event = pf.sample(detector, params, truth, seed=100 + k)
         for method in ("gradient", "minuit")[: 2 if k < args.minuit else 1]:
-            fit = pf.reconstruct(detector, params, event, "mu-", method, config=config)
+            fit = pf.reconstruct(detector, params, event, "mu-", method, config=config,
+                                 settings=settings)
             row = {"event": k, "method": method, "seconds": fit.seconds,
                    "evaluations": fit.evaluations, "converged": fit.converged,
                    "failure": fit.failure}

@@ -6,8 +6,10 @@ first-hit time, against one sampled event) with respect to the 7 track parameter
 (position, time, two direction angles, energy), and the forward of a batch of 64 tracks
 (``lax.map`` in vmapped chunks of 8), for direct light only (``n_bounces=0``) and for
 direct + indirect light
-(2 bounces, 1,024 rays). Medians of 5 calls after compilation; each case runs in its own
-process (peak memory is per case). Prints a Markdown table for BENCHMARKS.md.
+(2 bounces, 1,024 rays), each with the default direct-light quadrature and with the
+moment tables (``emission_model="tables"``). Medians of 5 calls after compilation;
+each case runs in its own process (peak memory is per case). Prints a Markdown table
+for BENCHMARKS.md.
 """
 
 from __future__ import annotations
@@ -19,7 +21,10 @@ import subprocess
 import sys
 import time
 
-CASES = {"direct": 0, "direct + indirect": 2}
+#: (bounces, emission model) per case: the default quadrature, and the direct light of
+#: the sensors seen from afar read from moment tables (``emission_model="tables"``).
+CASES = {"direct": (0, "spline"), "direct + indirect": (2, "spline"),
+         "direct, tables": (0, "tables"), "direct + indirect, tables": (2, "tables")}
 
 
 def _median_seconds(function, repeats: int = 5) -> float:
@@ -35,7 +40,7 @@ def _median_seconds(function, repeats: int = 5) -> float:
     return float(np.median(times))
 
 
-def measure(bounces: int) -> dict:
+def measure(bounces: int, emission_model: str = "spline") -> dict:
     """One case in this process: seconds and peak resident memory (MB)."""
     import jax
     import jax.numpy as jnp
@@ -46,7 +51,7 @@ def measure(bounces: int) -> dict:
 
     detector = pf.load_detector("SK")
     params = pf.default_params(detector)
-    config = pf.TransportConfig(n_bounces=bounces, n_rays=1024)
+    config = pf.TransportConfig(n_bounces=bounces, n_rays=1024, emission_model=emission_model)
     predict = pf.expected_function(detector, config=config)
     truth = pf.Track("mu-", [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], 1000.0, 0.0)
     event = pf.sample(detector, params, truth, seed=1)
@@ -92,7 +97,7 @@ def main() -> None:
     parser.add_argument("--case", choices=list(CASES), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.case is not None:
-        print(json.dumps(measure(CASES[args.case])))
+        print(json.dumps(measure(*CASES[args.case])))
         return
     from photonflow.benchmarking import machine_description
 

@@ -10,7 +10,9 @@ b' = rho' sin(theta0)), the moments
     j = 0 ... 3,   u(x) = (a' - x) / sqrt((a' - x)^2 + b'^2),
 
 of the model's density rho^ (normalised to one photon, averaged over each of the first
-``FOOTPRINT_LAYERS`` footprint widths) are integrated once per energy node by
+``FOOTPRINT_LAYERS`` footprint widths; stored as T_0, T_1 and the second and third
+moments about the entry's own mean T_1 / T_0, which float32 keeps where the light comes
+from a short stretch and raw moments would cancel) are integrated once per energy node by
 Gauss-Legendre panels in u that end at the model's cos knots and at the cosines under
 which the point sees its knots along the track. A ``TabulatedEmission`` carries the
 spline model with its table; its ``at`` gives the model's ``EmissionSlice`` together
@@ -32,7 +34,8 @@ from ..numerics import where
 from ..pytree import pytree_dataclass
 from .spline import EmissionSlice, SplineEmission, _bicubic_weights, _cell_blocks, _cell_widths
 
-#: Moments x^0 ... x^3 of the emission weight along the track (a two-node Gauss rule).
+#: Moments of the emission weight along the track (a two-node Gauss rule): T_0, T_1 =
+#: int x w, and int (x - T_1 / T_0)^k w for k = 2, 3.
 MOMENTS = 4
 #: Stretches of the track (between the emission model's knots) with moments of their
 #: own, each its own Gauss rule and arrival-time component: one, since a sensor seen
@@ -140,15 +143,19 @@ def _node_moments(root, fraction, cos, log_distance, table_cos):
     x = jnp.clip(x, 0.0, 1.0)
     patch, i, j = _bicubic_weights(fraction, cos, x, u)
     factor = du / sin_u * (rho / sine)[..., None] * norm
-    powers = jnp.stack([x**m for m in range(MOMENTS)], axis=-1)  # (R, A, M, MOMENTS)
     stretch = jnp.sum(x[..., None] > stretch_bounds(fraction), axis=-1)
     member = (stretch[..., None] == jnp.arange(STRETCHES)).astype(a.dtype)  # (R, A, M, C)
 
     def layer(block):
         value = jnp.sum(patch * block[i, j], axis=-1)
-        weight = where(inside, value * value * factor, 0.0)
-        moments = jnp.einsum("ram,ramc,ramj->racj", weight, member, powers)
-        return moments.reshape(a.shape + (-1,))
+        weight = where(inside, value * value * factor, 0.0)[..., None] * member  # (R,A,M,C)
+        total = jnp.sum(weight, axis=2)
+        first = jnp.sum(weight * x[..., None], axis=2)
+        mean = first / jnp.where(total > 0, total, 1.0)
+        centred = x[..., None] - mean[:, :, None, :]  # about each entry's own mean
+        moments = [total, first, jnp.sum(weight * centred**2, axis=2),
+                   jnp.sum(weight * centred**3, axis=2)]
+        return jnp.stack(moments, axis=-1).reshape(a.shape + (-1,))
 
     return jax.lax.map(layer, cells)
 

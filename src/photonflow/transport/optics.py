@@ -71,9 +71,11 @@ class TransportConfig:
             (unbiased); 3.5 (default) lowers that light's variance several-fold for a
             bias of ~10^-4 of a sensor's light (``docs/transport.md``). Between 1 and
             ``sensor_arrays.WIDEST_DISC`` (3.5).
-        emission_model: the emission model of particle tracks, "spline" (default) or
-            "siren" (``photonflow.emission.emission_model``; ``docs/tracks.md``
-            compares them).
+        emission_model: the emission model of particle tracks, "spline" (default),
+            "siren", or "tables": the spline with moment tables from which the direct
+            light of the sensors seen from afar is read, ~4x faster for that light
+            (``photonflow.emission.emission_model``; ``docs/tracks.md`` compares
+            them).
     """
 
     n_bounces: int = 2

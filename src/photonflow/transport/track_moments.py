@@ -16,11 +16,11 @@ track. In units of the light's extent S (x = s / S, rho' = R0 / S) the moments
     T_j(rho', cos(theta0)) = rho'^2 int_0^1 dx x^j rho^(x, u(x)) / ((a' - x)^2 + b'^2),
     j = 0 ... 3,
 
-of the emission density rho^ normalised to one photon are a function of the geometry
-alone, tabulated once per energy node of the emission model and footprint width
-(``MomentTable``, ``moment_table``). A sensor's light then follows from a two-node
-Gauss rule for the measure w: its nodes and weights are those of the orthogonal
-polynomials of the moments T_0 ... T_3 (exact for a J cubic in s), so
+of the emission density rho^ normalised to one photon (T_2 and T_3 kept about the mean
+T_1 / T_0) are a function of the geometry alone, tabulated once per energy node of the
+emission model and footprint width (``emission.moments``). A sensor's light then
+follows from a two-node Gauss rule for the measure w: its nodes and weights are those
+of the orthogonal polynomials of these moments (exact for a J cubic in s), so
 
     mu = (yield / R0^2) x T_0 x (p_+ J(s_+) + p_- J(s_-)),
 
@@ -53,6 +53,10 @@ from ..response.detection import acceptance_at_cos
 from . import track_direct
 from .optics import interaction_rates, travel_time
 from .track_direct import LIGHT_FLOOR
+
+#: Width (m) of the smooth step that drops a Gauss node beyond the wall (the table holds
+#: the whole track's moments; ``length`` cuts them at the nodes).
+WALL_RAMP = 0.1
 
 
 def _patch_values(root, layer, i, j):
@@ -119,18 +123,21 @@ def far_direct_light(positions, normals, radius, *, params, position, direction,
               * params.quantum_efficiency
               * acceptance_at_cos(params.angular_acceptance, cos_in)
               * jnp.exp(-interaction_rates(params)[3] * length_))
-    if length is not None:
-        factor = where(s <= length, factor, 0.0)
+    if length is not None:  # the wall: a smooth cut, so the light moves continuously
+        cut = jnp.clip((length - s) / WALL_RAMP + 0.5, 0.0, 1.0)
+        factor = factor * cut * cut * (3.0 - 2.0 * cut)
     light = light0[..., None] * node_weights * factor  # (N, C, 2)
     charge = jnp.sum(light, axis=-1)
     offset_mean, offset_variance = emission.time_moments(s)
-    arrival = time + s / SPEED_OF_LIGHT + offset_mean + travel_time(length_, params)
+    # arrival times relative to light from the start, so the variance does not cancel
+    reference = (time + travel_time(distance, params))[:, None]
+    arrival = (s / SPEED_OF_LIGHT + offset_mean + travel_time(length_, params)
+               - travel_time(distance, params)[:, None, None])
     lit = charge > LIGHT_FLOOR
     safe = where(lit, charge, 1.0)
     mean = jnp.sum(light * arrival, axis=-1) / safe
     second = jnp.sum(light * (offset_variance + arrival * arrival), axis=-1) / safe
-    reference = (time + travel_time(distance, params))[:, None]
-    return (charge, where(lit, mean, reference),
+    return (charge, reference + where(lit, mean, 0.0),
             where(lit, jnp.maximum(second - mean * mean, 0.0), 0.0).astype(dtype))
 
 
@@ -155,17 +162,16 @@ SKEW_LIMIT = 8.0
 
 def _gauss_nodes(moments):
     """Nodes (..., 2) in x = s / S and weights (..., 2) (fractions, summing to 1) of the
-    two-node Gauss rule of a measure on [0, 1] with the raw moments (..., MOMENTS) T_0
-    ... T_3: mean m, standard deviation sd and skewness g give the roots
-    t = (g +- sqrt(g^2 + 4)) / 2 of the second orthogonal polynomial in (x - m) / sd."""
+    two-node Gauss rule of a measure on [0, 1] with the moments (..., MOMENTS) (T_0, T_1,
+    and the second and third moments about the mean T_1 / T_0): mean m, standard
+    deviation sd and skewness g give the roots t = (g +- sqrt(g^2 + 4)) / 2 of the second
+    orthogonal polynomial in (x - m) / sd."""
     tiny = jnp.finfo(moments.dtype).tiny
     total = jnp.maximum(moments[..., 0], tiny)
-    m1, m2, m3 = (moments[..., k] / total for k in (1, 2, 3))
-    mean = jnp.clip(m1, 0.0, 1.0)
-    variance = jnp.clip(m2 - mean * mean, 0.0, mean * (1.0 - mean))
+    mean = jnp.clip(moments[..., 1] / total, 0.0, 1.0)
+    variance = jnp.clip(moments[..., 2] / total, 0.0, mean * (1.0 - mean))
     sd = jnp.sqrt(variance + 1e-12)
-    third = m3 - 3.0 * mean * m2 + 2.0 * mean**3
-    skew = jnp.clip(third / (sd * sd * sd), -SKEW_LIMIT, SKEW_LIMIT)
+    skew = jnp.clip(moments[..., 3] / total / (sd * sd * sd), -SKEW_LIMIT, SKEW_LIMIT)
     root = jnp.sqrt(skew * skew + 4.0)
     upper, lower = 0.5 * (skew + root), 0.5 * (skew - root)
     nodes = jnp.clip(mean[..., None] + sd[..., None] * jnp.stack([upper, lower], axis=-1),
