@@ -39,9 +39,7 @@ from .spline import EmissionSlice, SplineEmission, _bicubic_weights, _cell_block
 MOMENTS = 4
 #: Stretches of the track (between the emission model's knots) with moments of their
 #: own, each its own Gauss rule and arrival-time component: one, since a sensor seen
-#: from afar sees a short stretch (4, as the quadrature's components, cost 4x per
-#: sensor and left the light's accuracy as it was: SK 5 GeV mu-, 9 % rms either way
-#: on the coarser distance axis of the first version).
+#: from afar sees a short stretch (each more costs as much again per sensor).
 STRETCHES = 1
 #: Distance axis: rho' = R0 / S, log-spaced in two pieces, steps of ``DISTANCE_STEPS``
 #: in log rho' below and above ``DISTANCE_RANGE[1]``: fine where the sensor sits beside
@@ -65,19 +63,16 @@ class MomentTable:
     Attributes:
         log_energy: (K,) the model's energy nodes, log(MeV).
         log_distance: (R,) knots in log(rho'), rho' = R0 / S.
-        cos: (A,) knots in cos(theta0) (the model's cos knots).
-        values: (K, W, R, A, STRETCHES x MOMENTS) rho'^2 T_j per node, footprint layer,
-            knot and stretch of the track (photons per photon emitted).
-        extent: (K,) the light's extent S per node, m.
-        total_yield: (K,) photons per particle per node.
+        cos: (A,) knots in cos(theta0) (the model's cos knots, ``COS_REFINE``).
+        values: (K, W, R, A, STRETCHES x MOMENTS) rho'^2 x (T_0, T_1, the second and
+            third moments about T_1 / T_0) per node, footprint layer, knot and stretch
+            of the track (per photon emitted; x in units of the extent).
     """
 
     log_energy: jax.Array
     log_distance: jax.Array
     cos: jax.Array
     values: jax.Array
-    extent: jax.Array
-    total_yield: jax.Array
 
 
 def moment_table(model: SplineEmission) -> MomentTable:
@@ -106,8 +101,6 @@ def _cached_table(model: SplineEmission) -> MomentTable:
             log_distance=jnp.asarray(log_distance, dtype),
             cos=cos,
             values=jnp.stack(rows),
-            extent=model.extent,
-            total_yield=model.total_yield,
         )
 
 
