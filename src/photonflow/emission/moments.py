@@ -193,19 +193,20 @@ def _energy_terms(log_energy, energy):
 
 
 def _slopes(values, knots, axis):
-    """Finite-difference slopes of ``values`` along ``axis`` on the nonuniform ``knots``
-    (central inside, one-sided at the ends)."""
-    v = jnp.moveaxis(values, axis, 0)
-    central = (v[2:] - v[:-2]) / (knots[2:] - knots[:-2]).reshape((-1,) + (1,) * (v.ndim - 1))
-    first = (v[1:2] - v[:1]) / (knots[1] - knots[0])
-    last = (v[-1:] - v[-2:-1]) / (knots[-1] - knots[-2])
-    return jnp.moveaxis(jnp.concatenate([first, central, last]), 0, axis)
+    """Slopes of ``values`` along ``axis`` at the ``knots`` of a natural cubic spline
+    (C2: the likelihood's curvature, which the reconstruction's Hessian measures, is
+    continuous across the table's cells; ``interpax``)."""
+    import interpax
+
+    with jax.numpy_dtype_promotion("standard"):  # interpax mixes int and float
+        return interpax.approx_df(knots, values, method="cubic2", axis=axis)
 
 
 def track_table(table: MomentTable, energy):
     """The moment table at ``energy`` (MeV, clamped to the nodes): (W, 4, R, A, STRETCHES
     x MOMENTS) values and their derivatives d/dlog(rho'), d/dcos and d^2/dlog(rho')dcos
-    (finite differences) at the knots, for bicubic Hermite patches in (log rho', cos)."""
+    (natural cubic splines) at the knots, for bicubic Hermite patches in (log rho',
+    cos)."""
     weights, idx = _energy_terms(table.log_energy, energy)
     values = jnp.tensordot(weights, table.values[idx], axes=1)  # (W, R, A, MOMENTS)
     d_r = _slopes(values, table.log_distance, 1)
