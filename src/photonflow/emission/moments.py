@@ -51,8 +51,6 @@ DISTANCE_STEPS = (0.06, 0.23)
 #: Footprint widths tabulated: the first this many of ``FOOTPRINT_WIDTHS`` (half-widths
 #: up to 0.64 in cos: a disc of radius r seen from 1.6 r).
 FOOTPRINT_LAYERS = 9
-#: Cos axis: the model's cos knots, with midpoints added this many times.
-COS_REFINE = 0
 
 
 @pytree_dataclass
@@ -63,7 +61,7 @@ class MomentTable:
     Attributes:
         log_energy: (K,) the model's energy nodes, log(MeV).
         log_distance: (R,) knots in log(rho'), rho' = R0 / S.
-        cos: (A,) knots in cos(theta0) (the model's cos knots, ``COS_REFINE``).
+        cos: (A,) knots in cos(theta0) (the model's cos knots).
         values: (K, W, R, A, STRETCHES x MOMENTS) rho'^2 x (T_0, T_1, the second and
             third moments about T_1 / T_0) per node, footprint layer, knot and stretch
             of the track (per photon emitted; x in units of the extent).
@@ -88,10 +86,7 @@ def _cached_table(model: SplineEmission) -> MomentTable:
     with jax.ensure_compile_time_eval():
         dtype = model.root.dtype
         log_distance = distance_knots()
-        knots = np.asarray(model.cos, np.float64)
-        for _ in range(COS_REFINE):
-            knots = np.sort(np.concatenate([knots, 0.5 * (knots[1:] + knots[:-1])]))
-        cos = jnp.asarray(knots, dtype)
+        cos = model.cos
         rows = []
         for k in range(model.log_energy.shape[0]):
             rows.append(_node_moments(model.root[k, :FOOTPRINT_LAYERS], model.fraction,
