@@ -48,10 +48,12 @@ class LBFGSStep:
     accepted: bool
 
 
-def lbfgs_direction(gradient: np.ndarray, pairs) -> np.ndarray:
+def lbfgs_direction(gradient: np.ndarray, pairs,
+                    initial_scale: float | None = None) -> np.ndarray:
     """The L-BFGS search direction -H g (two-loop recursion over ``pairs``, oldest
-    first; the initial inverse Hessian scaled by the newest pair's s.y / y.y, or by
-    1 / max(1, |g|) without pairs), in the units of the point."""
+    first; the initial inverse Hessian scaled by the newest pair's s.y / y.y, or without
+    pairs by ``initial_scale``, if given, else by 1 / max(1, |g|)), in the units of the
+    point."""
     direction = -np.asarray(gradient, np.float64).copy()
     alphas = []
     for s, y in reversed(pairs):
@@ -59,8 +61,9 @@ def lbfgs_direction(gradient: np.ndarray, pairs) -> np.ndarray:
         direction -= alpha * y
         alphas.append(alpha)
     if pairs:
-        s, y = pairs[-1]
-        direction *= (s @ y) / (y @ y)
+        direction *= pair_scale(pairs)
+    elif initial_scale is not None:
+        direction *= initial_scale
     else:
         direction /= max(1.0, float(np.linalg.norm(gradient)))
     for (s, y), alpha in zip(pairs, reversed(alphas), strict=True):
@@ -69,9 +72,16 @@ def lbfgs_direction(gradient: np.ndarray, pairs) -> np.ndarray:
     return direction
 
 
+def pair_scale(pairs) -> float:
+    """The scale s.y / y.y of the newest (step, gradient change) pair: the inverse
+    curvature along it (units of the point squared per unit of the objective)."""
+    s, y = pairs[-1]
+    return float((s @ y) / (y @ y))
+
+
 def lbfgs_step(value_and_grad: Callable, point, value: float, gradient, pairs=(),
                memory: int = 10, max_halvings: int = 30,
-               min_decrease: float = 0.0) -> LBFGSStep:
+               min_decrease: float = 0.0, initial_scale: float | None = None) -> LBFGSStep:
     """One L-BFGS step from ``point`` (whose objective ``value`` and ``gradient`` are
     known): along ``lbfgs_direction`` (the steepest descent if that does not descend),
     the first of the shrinking step lengths 1, ... (at most ``max_halvings`` trials, each
@@ -79,14 +89,16 @@ def lbfgs_step(value_and_grad: Callable, point, value: float, gradient, pairs=()
     is taken, and its pair is kept among the newest ``memory`` when its curvature is
     positive. The search gives up (no step accepted) once a step's first-order decrease
     -slope x length falls below ``min_decrease`` (units of the objective): at a minimum
-    within that, shorter steps only spend evaluations.
+    within that, shorter steps only spend evaluations. ``initial_scale``: the inverse
+    curvature of the first step without pairs (e.g. ``pair_scale`` of an earlier run on
+    a similar objective); None: a step of length 1.
 
     ``value_and_grad(x)``: the objective's value (float) and gradient (array) at a flat
     float64 point ``x``; a non-finite value counts as no decrease.
     """
     point = np.asarray(point, np.float64)
     gradient = np.asarray(gradient, np.float64)
-    direction = lbfgs_direction(gradient, pairs)
+    direction = lbfgs_direction(gradient, pairs, initial_scale)
     slope = float(gradient @ direction)
     if not slope < 0:
         direction, slope = -gradient, -float(gradient @ gradient)

@@ -20,13 +20,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..generator.track import Track
-from ..lbfgs import lbfgs_step
+from ..lbfgs import lbfgs_step, pair_scale
 from ..transport.optics import orthonormal_basis
 from .coordinates import (
     fit_frame,
     free_from_track,
     local_from_track,
     track_from_free,
+    track_from_local,
 )
 from .result import RecoResult
 
@@ -61,6 +62,7 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
     """L-BFGS from ``start``, with reference refreshes (module docstring)."""
     dtype = data.charge.dtype
     reference, iterations, evaluations, converged = start, 0, 0, False
+    scale = None  # the last stage's inverse curvature: the first step's of the next
     for stage in range(settings.refreshes + 2):
         use_time = stage > 0  # a charge-only stage first: its landscape is smoother
         frame = fit_frame(detector.shape, reference.direction, model.energy_range,
@@ -84,11 +86,12 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
         pairs, history, converged = (), [], False
         for _ in range(settings.max_iterations):
             step = lbfgs_step(value_and_grad, free, value, gradient, pairs,
-                              min_decrease=MIN_DECREASE * settings.tolerance)
+                              min_decrease=MIN_DECREASE * settings.tolerance,
+                              initial_scale=scale)
             iterations += 1
             evaluations += step.evaluations
             if not step.accepted and pairs:  # once more along the steepest descent
-                pairs = ()
+                scale, pairs = pair_scale(pairs), ()
                 continue
             if not step.accepted:
                 # not even a steepest-descent step lowers the likelihood (within its float
@@ -99,6 +102,7 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
                                      settings.tolerance)
                 break
             free, value, gradient, pairs = step.point, step.value, step.gradient, step.pairs
+            scale = pair_scale(pairs) if pairs else scale
             if not np.all(np.isfinite(gradient)):
                 return _failure("the gradient is not finite", start, iterations)
             history.append(value)
@@ -111,12 +115,19 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
         reference = fitted
         if use_time and not moved:
             break
-    fixed = cast_track(reference, dtype)
-    value = float(functions.value(free_from_track(frame, fixed), frame, fixed, data))
-    covariance = _covariance(functions, detector, model, data, reference)
+    hessian, local_frame = _hessian(functions, detector, model, data, reference)
+    covariance = _inverse(hessian)
     # a point whose Hessian is not positive definite is not a minimum (a saddle, or a
     # ridge the tolerance stopped on): never reported as converged
-    converged = converged and bool(np.all(np.isfinite(covariance)))
+    minimum = bool(np.all(np.isfinite(covariance)))
+    converged = converged and minimum
+    if minimum:
+        reference, value, polished = polish(functions, detector, model, local_frame,
+                                            reference, data, hessian, settings.tolerance)
+        evaluations += polished
+    else:
+        fixed = cast_track(reference, dtype)
+        value = float(functions.value(free_from_track(frame, fixed), frame, fixed, data))
     return RecoResult(position=np.asarray(reference.position), time=float(reference.time),
                       direction=np.asarray(reference.direction),
                       energy=float(reference.energy), covariance=covariance, nll=value,
@@ -139,7 +150,7 @@ FREE, LOCAL_COORDINATES = np.bool_(False), np.bool_(True)
 HESSIAN_STEPS = (0.01, 0.01, 0.01, 0.05, 0.002, 0.002, 0.002)
 #: ... and of the second, as a fraction of each coordinate's 1 sigma (with the others
 #: fixed) from the first.
-HESSIAN_STEP_SIGMA = 0.1
+HESSIAN_STEP_SIGMA = 1.0
 
 
 def local_hessian(functions, frame, track: Track, data, wall: float = math.inf) -> np.ndarray:
@@ -183,19 +194,74 @@ def local_hessian(functions, frame, track: Track, data, wall: float = math.inf) 
     return differences(np.clip(HESSIAN_STEP_SIGMA / np.sqrt(curvature), lowest, highest))
 
 
-def _covariance(functions, detector, model, data, track) -> np.ndarray:
-    """Inverse Hessian of the negative log-likelihood at ``track`` in ``LOCAL``
-    coordinates (NaN where the Hessian is not positive definite)."""
+def _hessian(functions, detector, model, data, track):
+    """``local_hessian`` at ``track`` about its own direction, and that ``FitFrame``."""
     dtype = data.charge.dtype
     frame = fit_frame(detector.shape, track.direction, model.energy_range, track.particle,
                       0.0, dtype)
     wall = float(detector.shape.distance_to_wall(np.asarray(track.position, np.float64)))
-    hessian = local_hessian(functions, frame, cast_track(track, dtype), data, wall)
+    return local_hessian(functions, frame, cast_track(track, dtype), data, wall), frame
+
+
+def _inverse(hessian) -> np.ndarray:
+    """The covariance: the inverse of ``hessian`` (all NaN where it is not positive
+    definite)."""
     try:
         np.linalg.cholesky(hessian)
     except np.linalg.LinAlgError:
         return np.full_like(hessian, np.nan)
     return np.linalg.inv(hessian)
+
+
+#: Most Newton steps of ``polish``.
+POLISH_STEPS = 3
+
+
+def polish(functions, detector, model, frame, track: Track, data, hessian,
+           tolerance: float) -> tuple[Track, float, int]:
+    """Newton steps from a fitted ``track`` on its positive-definite ``hessian``
+    (``local_hessian``, ``LOCAL`` coordinates about ``frame``'s axis, the rays fixed by
+    ``track``), while a step is predicted to lower the negative log-likelihood by more
+    than ``tolerance`` and does lower it, at most ``POLISH_STEPS``; a step that would
+    leave the detector or the emission model's energy range is not taken.
+
+    L-BFGS stops along the flat vertex-energy valley of a track likelihood where its
+    last steps lowered it by less than the tolerance, which can leave several tenths of
+    a unit of -log L (and a centimetre) to the minimum; the Hessian from differences
+    over one sigma sees that valley's curvature, and its Newton step closes the gap.
+
+    Returns:
+        The track (the Hessian's point, or where the last accepted step ended), -log L
+        there, and the number of likelihood evaluations.
+    """
+    dtype = data.charge.dtype
+    fixed = cast_track(track, dtype)
+    one = jnp.asarray(1.0, dtype)
+
+    def value_and_grad(point):
+        value, gradient = functions.value_and_grad(jnp.asarray(point, dtype),
+                                                   LOCAL_COORDINATES, frame, fixed, data, one)
+        return float(value), np.asarray(gradient, np.float64)
+
+    point = np.asarray(local_from_track(fixed, dtype), np.float64)
+    value, gradient = value_and_grad(point)
+    evaluations, moved = 1, False
+    low, high = (math.log(e) for e in model.energy_range)
+    for _ in range(POLISH_STEPS):
+        step = -np.linalg.solve(hessian, gradient)
+        trial = point + step
+        inside = float(detector.shape.distance_to_wall(trial[:3])) > 0.0 and \
+            low < trial[6] < high
+        if not inside or -0.5 * float(gradient @ step) <= tolerance:
+            break
+        trial_value, trial_gradient = value_and_grad(trial)
+        evaluations += 1
+        if not trial_value < value:
+            break
+        point, value, gradient, moved = trial, trial_value, trial_gradient, True
+    fitted = _concrete(track_from_local(frame, jnp.asarray(point, dtype))) if moved \
+        else track
+    return fitted, value, evaluations
 
 
 def _failure(reason, start, iterations) -> RecoResult:
