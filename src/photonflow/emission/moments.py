@@ -37,10 +37,6 @@ from .spline import EmissionSlice, SplineEmission, _bicubic_weights, _cell_block
 #: Moments of the emission weight along the track (a two-node Gauss rule): T_0, T_1 =
 #: int x w, and int (x - T_1 / T_0)^k w for k = 2, 3.
 MOMENTS = 4
-#: Stretches of the track (between the emission model's knots) with moments of their
-#: own, each its own Gauss rule and arrival-time component: one, since a sensor seen
-#: from afar sees a short stretch (each more costs as much again per sensor).
-STRETCHES = 1
 #: Distance axis: rho' = R0 / S, log-spaced in two pieces, steps of ``DISTANCE_STEPS``
 #: in log rho' below and above ``DISTANCE_RANGE[1]``: fine where the sensor sits beside
 #: the track (the light of the track's end and start sweeps across the sensors there),
@@ -62,9 +58,10 @@ class MomentTable:
         log_energy: (K,) the model's energy nodes, log(MeV).
         log_distance: (R,) knots in log(rho'), rho' = R0 / S.
         cos: (A,) knots in cos(theta0) (the model's cos knots).
-        values: (K, W, R, A, STRETCHES x MOMENTS) rho'^2 x (T_0, T_1, the second and
-            third moments about T_1 / T_0) per node, footprint layer, knot and stretch
-            of the track (per photon emitted; x in units of the extent).
+        values: (K, W, R, A, MOMENTS) rho'^2 x (T_0, T_1, the second and third moments
+            about T_1 / T_0) of the whole track, per node, footprint layer and knot (per
+            photon emitted; x in units of the extent). One set per track, not per
+            stretch of it: a sensor seen from afar sees a short stretch.
     """
 
     log_energy: jax.Array
@@ -131,19 +128,17 @@ def _node_moments(root, fraction, cos, log_distance, table_cos):
     x = jnp.clip(x, 0.0, 1.0)
     patch, i, j = _bicubic_weights(fraction, cos, x, u)
     factor = du / sin_u * (rho / sine)[..., None] * norm
-    stretch = jnp.sum(x[..., None] > stretch_bounds(fraction), axis=-1)
-    member = (stretch[..., None] == jnp.arange(STRETCHES)).astype(a.dtype)  # (R, A, M, C)
 
     def layer(block):
         value = jnp.sum(patch * block[i, j], axis=-1)
-        weight = where(inside, value * value * factor, 0.0)[..., None] * member  # (R,A,M,C)
+        weight = where(inside, value * value * factor, 0.0)  # (R, A, M)
         total = jnp.sum(weight, axis=2)
-        first = jnp.sum(weight * x[..., None], axis=2)
+        first = jnp.sum(weight * x, axis=2)
         mean = first / jnp.where(total > 0, total, 1.0)
-        centred = x[..., None] - mean[:, :, None, :]  # about each entry's own mean
+        centred = x - mean[:, :, None]  # about each entry's own mean
         moments = [total, first, jnp.sum(weight * centred**2, axis=2),
                    jnp.sum(weight * centred**3, axis=2)]
-        return jnp.stack(moments, axis=-1).reshape(a.shape + (-1,))
+        return jnp.stack(moments, axis=-1)
 
     return jax.lax.map(layer, cells)
 
@@ -155,14 +150,6 @@ def distance_knots() -> np.ndarray:
     fine = np.linspace(low, middle, round((middle - low) / DISTANCE_STEPS[0]) + 1)
     coarse = np.linspace(middle, high, round((high - middle) / DISTANCE_STEPS[1]) + 1)
     return np.concatenate([fine, coarse[1:]])
-
-
-def stretch_bounds(fraction):
-    """(STRETCHES - 1,) bounds in x = s / S between the stretches of the track that make
-    the direct light's arrival-time components (the model's knots ``fraction`` (D,) at
-    equal shares of them, as ``track_direct.DIRECT_COMPONENTS``)."""
-    knots = fraction.shape[0]
-    return fraction[np.arange(1, STRETCHES) * knots // STRETCHES]
 
 
 def _energy_terms(log_energy, energy):
@@ -198,8 +185,8 @@ def _slopes(values, knots, axis):
 
 
 def track_table(table: MomentTable, energy):
-    """The moment table at ``energy`` (MeV, clamped to the nodes): (W, 4, R, A, STRETCHES
-    x MOMENTS) values and their derivatives d/dlog(rho'), d/dcos and d^2/dlog(rho')dcos
+    """The moment table at ``energy`` (MeV, clamped to the nodes): (W, 4, R, A, MOMENTS)
+    values and their derivatives d/dlog(rho'), d/dcos and d^2/dlog(rho')dcos
     (natural cubic splines) at the knots, for bicubic Hermite patches in (log rho',
     cos)."""
     weights, idx = _energy_terms(table.log_energy, energy)

@@ -196,40 +196,69 @@ def nearness(sensors: Sensors, position, direction, extent):
 def refine_near_field(base, sensors: Sensors, near_by, light, near: int):
     """``base`` (charge, mean, variance) (N, C) of every disc with the ``near`` discs of
     largest ``near_by`` (``nearness``) blended into their sub-discs' light (``light``:
-    ``disc_light_of``, on ``PANEL_BREAKS``) as their nearness rises (``_near_field``)."""
-    charge, mean, variance = base
-    index, blend = _near_field(near_by, near)
+    ``disc_light_of``, on ``PANEL_BREAKS``) as their nearness rises from ``NEAR_FROM``
+    to ``NEAR_FULL`` (``top_blend``)."""
+    index, blend = top_blend(near_by, near, NEAR_FROM, NEAR_FULL - NEAR_FROM)
     offsets, scale = _sub_disc_offsets(sensors.normals[index], sensors.radius[index])
     subs = offsets.shape[1]
     sub = light((sensors.positions[index][:, None, :] + offsets).reshape(-1, 3),
                 jnp.repeat(sensors.normals[index], subs, axis=0),
                 jnp.repeat(sensors.radius[index] * scale, subs), breaks=PANEL_BREAKS)
     parts = [x.reshape(near, subs, -1) for x in sub]
-    fine = mixed_moments(*parts, axis=1)
-    mixed = blended(charge[index], mean[index], variance[index], fine, blend)
+    return blend_into(base, index, mixed_moments(*parts, axis=1), blend)
+
+
+def blend_into(base, index, other, blend):
+    """``base`` (charge, mean, variance) (N, C) with its rows ``index`` (K,) replaced by
+    their mixture with ``other`` (charge, mean, variance) (K, C), of weight ``blend``
+    (K,) in [0, 1], moment-matched per component; a row left without light keeps its
+    mean."""
+    charge, mean, variance = base
+    weights = jnp.stack([1.0 - blend, blend], axis=1)[:, :, None]
+    mixed = mixed_moments(jnp.stack([charge[index], other[0]], axis=1) * weights,
+                          jnp.stack([mean[index], other[1]], axis=1),
+                          jnp.stack([variance[index], other[2]], axis=1), axis=1)
     mean_near = where(mixed[0] > LIGHT_FLOOR, mixed[1], mean[index])
     return (charge.at[index].set(mixed[0]), mean.at[index].set(mean_near),
             variance.at[index].set(mixed[2]))
 
 
-def blended(charge, mean, variance, other, blend):
-    """Per component, the mixture of (charge, mean, variance) (K, C) with weight 1 -
-    ``blend`` (K,) and ``other`` (the same, weight ``blend``): moment-matched."""
-    weights = jnp.stack([1.0 - blend, blend], axis=1)[:, :, None]
-    return mixed_moments(jnp.stack([charge, other[0]], axis=1) * weights,
-                         jnp.stack([mean, other[1]], axis=1),
-                         jnp.stack([variance, other[2]], axis=1), axis=1)
-
-
-def _near_field(nearness, count: int):
-    """(indices (count,), blend weights in [0, 1]) of the sensors refined by sub-discs:
-    the ``count`` largest ``nearness``; a sensor's weight rises smoothly from 0 at
-    max(``NEAR_FROM``, the next-largest nearness) to 1 at ``NEAR_FULL`` above that
-    (so a sensor leaving the selection has weight 0: the light stays continuous)."""
-    values, index = jax.lax.top_k(nearness, count + 1)
-    low = jnp.maximum(NEAR_FROM, values[-1])
-    x = jnp.clip((values[:-1] - low) / (NEAR_FULL - NEAR_FROM), 0.0, 1.0)
+def top_blend(score, count: int, floor: float = 0.0, ramp: float = 0.0,
+              relative_ramp: float = 0.0):
+    """(indices (count,), blend weights in [0, 1]) of the ``count`` largest ``score``
+    (dimensionless): a weight rises smoothly from 0 at ``low`` = max(``floor``, the
+    next-largest score) to 1 at ``low`` + ``ramp`` + ``relative_ramp`` x ``low`` (so an
+    entry leaving the selection has weight 0: whatever it selects enters continuously)."""
+    values, index = jax.lax.top_k(score, count + 1)
+    low = jnp.maximum(floor, values[-1])
+    x = jnp.clip((values[:-1] - low) / (ramp + relative_ramp * low), 0.0, 1.0)
     return index[:-1], x * x * (3.0 - 2.0 * x)
+
+
+def seen_disc(to_sensor, normals, radius, params):
+    """How discs see light from points: for vectors ``to_sensor`` (..., 3) m from the
+    points to the disc centres, the discs' inward ``normals`` (..., 3) and radii
+    ``radius`` (...) m, (length, cos_in, reach, share): the distance softened by r/4 (m),
+    the cosine of incidence, sqrt(length^2 + r^2) (m), and the disc's solid angle over
+    2 pi (0 from behind) x QE x angular acceptance x attenuation (dimensionless)."""
+    length = jnp.sqrt(jnp.sum(to_sensor * to_sensor, axis=-1) + (0.25 * radius) ** 2)
+    cos_in = -jnp.sum(to_sensor * normals, axis=-1) / length
+    radius2 = radius * radius
+    reach = jnp.sqrt(length * length + radius2)
+    share = (jnp.maximum(cos_in, 0.0) * radius2 / (reach * (reach + length))
+             * params.quantum_efficiency
+             * acceptance_at_cos(params.angular_acceptance, cos_in)
+             * jnp.exp(-interaction_rates(params)[3] * length))
+    return length, cos_in, reach, share
+
+
+def footprint_width(radius, reach, u, cos_in, facing):
+    """Half-width in cos of a disc's footprint (a semicircle): sin(theta) x the disc's
+    angular half-size along theta, for a disc of ``radius`` m at ``reach`` m (``seen_disc``)
+    seen under cos ``u`` to the track, with cosine of incidence ``cos_in`` and ``facing``
+    = track direction . disc normal."""
+    sin2 = jnp.maximum(1.0 - u * u, 0.0)
+    return radius / reach * safe_sqrt(sin2 - (u * cos_in + facing) ** 2)
 
 
 def _sub_disc_offsets(normals, radius):
@@ -306,27 +335,12 @@ def _disc_light(positions, normals, radius, *, params, position, direction, time
     jacobian = across_ / (sin2 * sine)
     emitted = position + s[..., None] * direction  # (N, M, 3)
     to_sensor = positions[:, None, :] - emitted
-    length = jnp.sqrt(jnp.sum(to_sensor * to_sensor, axis=-1) + soft[:, None] ** 2)
-    cos_in = -jnp.sum(to_sensor * normals[:, None, :], axis=-1) / length
-    radius2 = (radius * radius)[:, None]
-    reach = jnp.sqrt(length * length + radius2)
-    solid_angle = jnp.maximum(cos_in, 0.0) * 2.0 * math.pi * radius2 / (reach * (reach + length))
+    length, cos_in, reach, share = seen_disc(to_sensor, normals[:, None, :],
+                                             radius[:, None], params)
     # the disc spans a range of cos around u: average the density over its footprint
-    # (semicircle of half-width sin(theta) x its angular half-size along theta)
-    facing = (direction @ normals.T)[:, None]  # d . n
-    density = emission.density(
-        s, u, width=jnp.sqrt(radius2) / reach * safe_sqrt(sin2 - (u * cos_in + facing) ** 2)
-    )
-    light = (
-        weight
-        * density
-        * jacobian
-        * solid_angle
-        / (2.0 * math.pi)
-        * params.quantum_efficiency
-        * acceptance_at_cos(params.angular_acceptance, cos_in)
-        * jnp.exp(-interaction_rates(params)[3] * length)
-    )
+    width = footprint_width(radius[:, None], reach, u, cos_in,
+                            (direction @ normals.T)[:, None])
+    light = weight * emission.density(s, u, width=width) * jacobian * share
     light = where(cos_in > 0.0, light, 0.0)
     offset_mean, offset_variance = emission.time_moments(s)
     reference = time + travel_time(jnp.sqrt(jnp.sum(offset * offset, axis=-1)), params)

@@ -42,16 +42,13 @@ times ns, energies MeV.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 
 from ..constants import SPEED_OF_LIGHT
-from ..emission.moments import MOMENTS, STRETCHES
 from ..emission.spline import _PATCH, _bicubic_weights, _footprint_terms
-from ..numerics import safe_sqrt, where
-from ..response.detection import acceptance_at_cos
+from ..numerics import where
 from . import track_direct
-from .optics import interaction_rates, travel_time
+from .optics import travel_time
 from .track_direct import LIGHT_FLOOR
 
 #: Width (m) of the smooth step that drops a Gauss node beyond the wall (the table holds
@@ -70,7 +67,7 @@ def _patch_values(root, layer, i, j):
 def far_direct_light(positions, normals, radius, *, params, position, direction, time,
                      emission, peak, length=None):
     """Direct light of one track at discs seen from afar, from the ``MomentTable``
-    (module docstring): one arrival-time component per stretch of the track.
+    (module docstring): one arrival-time component.
 
     Args:
         positions: (N, 3) disc centres, m. normals: (N, 3) inward unit normals.
@@ -85,9 +82,8 @@ def far_direct_light(positions, normals, radius, *, params, position, direction,
 
     Returns:
         (charge (N, C) p.e. of sensors of efficiency 1, mean arrival times (N, C) ns,
-        variances (N, C) ns^2) of the C = ``STRETCHES`` stretches of the track (a
-        component without light gets the time of light from the track start and
-        variance 0).
+        variances (N, 1) ns^2) of the one component (without light: the time of
+        light from the track start and variance 0).
     """
     dtype = positions.dtype
     root = emission.moment_root
@@ -101,28 +97,26 @@ def far_direct_light(positions, normals, radius, *, params, position, direction,
     cos0 = along / distance
     # footprint half-width at the point that sees the sensor under the peak angle
     s_peak = jnp.clip(along - across * peak / jnp.sqrt(1.0 - peak * peak), 0.0, extent)
-    width = _footprint_width(positions, normals, radius, position, direction, s_peak)
+    to_peak = positions - (position + s_peak[:, None] * direction)
+    peak_length, peak_cos_in, peak_reach, _ = track_direct.seen_disc(to_peak, normals,
+                                                                     radius, params)
+    width = track_direct.footprint_width(radius, peak_reach, (to_peak @ direction) / peak_length,
+                                         peak_cos_in, normals @ direction)
     log_rho = jnp.log(distance / extent)
     patch, i, j = _bicubic_weights(emission.log_distance, emission.table_cos, log_rho, cos0)
     moments = 0.0
     for weight, layer in _footprint_terms(width, root.shape[0]):
         moments = moments + weight[:, None] * jnp.einsum(
             "np,npm->nm", patch, _patch_values(root, layer, i, j))
-    moments = moments.reshape(moments.shape[0], STRETCHES, MOMENTS)
+    moments = moments[:, None, :]  # one component
     nodes, node_weights = _gauss_nodes(moments)  # (N, C, 2) in x, fractions of T_0
     light0 = (total_yield / (distance * distance))[:, None] * jnp.maximum(moments[..., 0], 0.0)
     s = nodes * extent
     emitted = position + s[..., None] * direction  # (N, C, 2, 3)
-    to_sensor = positions[:, None, None, :] - emitted
-    soft2 = (soft * soft)[:, None, None]
-    length_ = jnp.sqrt(jnp.sum(to_sensor * to_sensor, axis=-1) + soft2)
-    cos_in = -jnp.sum(to_sensor * normals[:, None, None, :], axis=-1) / length_
-    radius2 = (radius * radius)[:, None, None]
-    reach = jnp.sqrt(length_ * length_ + radius2)
-    factor = (jnp.maximum(cos_in, 0.0) * radius2 * length_ * length_ / (reach * (reach + length_))
-              * params.quantum_efficiency
-              * acceptance_at_cos(params.angular_acceptance, cos_in)
-              * jnp.exp(-interaction_rates(params)[3] * length_))
+    length_, _, _, share = track_direct.seen_disc(
+        positions[:, None, None, :] - emitted, normals[:, None, None, :],
+        radius[:, None, None], params)
+    factor = share * length_ * length_
     if length is not None:  # the wall: a smooth cut, so the light moves continuously
         cut = jnp.clip((length - s) / WALL_RAMP + 0.5, 0.0, 1.0)
         factor = factor * cut * cut * (3.0 - 2.0 * cut)
@@ -139,20 +133,6 @@ def far_direct_light(positions, normals, radius, *, params, position, direction,
     second = jnp.sum(light * (offset_variance + arrival * arrival), axis=-1) / safe
     return (charge, reference + where(lit, mean, 0.0),
             where(lit, jnp.maximum(second - mean * mean, 0.0), 0.0).astype(dtype))
-
-
-def _footprint_width(positions, normals, radius, position, direction, s):
-    """Half-width in cos of the footprint of each disc seen from the point s (N,) m of
-    the track (``track_direct``: sin(theta) x its angular half-size along theta)."""
-    to_sensor = positions - (position + s[:, None] * direction)
-    distance2 = jnp.sum(to_sensor * to_sensor, axis=-1)
-    length = jnp.sqrt(distance2 + (0.25 * radius) ** 2)
-    u = (to_sensor @ direction) / length
-    cos_in = -jnp.sum(to_sensor * normals, axis=-1) / length
-    reach = jnp.sqrt(length * length + radius * radius)
-    facing = normals @ direction
-    sin2 = jnp.maximum(1.0 - u * u, 0.0)
-    return radius / reach * safe_sqrt(jnp.maximum(sin2 - (u * cos_in + facing) ** 2, 0.0))
 
 
 #: Largest standardised skewness of the weight along the track the Gauss rule takes
@@ -209,21 +189,14 @@ def tabulated_direct_light(sensors, params, position, direction, time, emission,
                            params=params, position=position, direction=direction,
                            time=time, emission=emission,
                            peak=track_direct.peak_cos(emission), length=length)
-    pad = track_direct.DIRECT_COMPONENTS - STRETCHES
+    pad = track_direct.DIRECT_COMPONENTS - 1
     charge, mean, variance = (jnp.concatenate([x, jnp.broadcast_to(fill, x.shape[:1] + (pad,))],
                                               axis=1)
                               for x, fill in zip(far, (0.0, far[1][:, :1], 0.0), strict=True))
     count = min(QUADRATURE_SENSORS, sensors.positions.shape[0] - 1)
-    values, index = jax.lax.top_k(near_by, count + 1)
-    low, index = values[-1], index[:-1]
-    x = jnp.clip((values[:-1] - low) / (QUADRATURE_BLEND * low), 0.0, 1.0)
-    blend = x * x * (3.0 - 2.0 * x)
+    index, blend = track_direct.top_blend(near_by, count, relative_ramp=QUADRATURE_BLEND)
     quadrature = light(sensors.positions[index], sensors.normals[index],
                        sensors.radius[index],
                        breaks=track_direct._peak_breaks(emission, sensors.positions.dtype))
-    mixed = track_direct.blended(charge[index], mean[index], variance[index], quadrature,
-                                 blend)
-    mean_near = where(mixed[0] > LIGHT_FLOOR, mixed[1], mean[index])
-    base = (charge.at[index].set(mixed[0]), mean.at[index].set(mean_near),
-            variance.at[index].set(mixed[2]))
+    base = track_direct.blend_into((charge, mean, variance), index, quadrature, blend)
     return track_direct.refine_near_field(base, sensors, near_by, light, near)
