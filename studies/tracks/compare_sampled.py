@@ -3,16 +3,19 @@
     python studies/tracks/compare_sampled.py [--detector SK] [--particle mu-]
         [--energy 1000] [--events 60] [--start 0,0,0] [--direction 1,0,0]
         [--absorption-only] [--keys 1] [--plot PATH]
+        [--emission-model spline|siren|tables] [--cache SAMPLED.npz]
 
 Per-sensor p.e. of generator + sampled transport (counted before the charge response)
 against ``expected`` (4,096 rays, averaged over ``--keys`` ray keys); prints the totals,
 the per-sensor chi2/ndf (with and without a 3 % floor) and the light by the sensors'
-angle to the track.
+angle to the track. ``--cache``: the sampled counts are read from this file if it
+exists (written there otherwise), so that several emission models meet the same events.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 
 import jax
 import numpy as np
@@ -39,6 +42,10 @@ def main() -> None:
                         help="average the expected mode over this many ray keys")
     parser.add_argument("--plot", default=None,
                         help="write the sampled and expected maps and the pulls here")
+    parser.add_argument("--emission-model", default="spline",
+                        help="TransportConfig.emission_model of the expected mode")
+    parser.add_argument("--cache", default=None,
+                        help="npz file of the sampled counts (read if it exists)")
     args = parser.parse_args()
     detector = pf.load_detector(args.detector)
     base = pf.default_params(detector)
@@ -49,19 +56,25 @@ def main() -> None:
                                 sensor_reflectivity=np.float32(0.0))
     direction = args.direction / np.linalg.norm(args.direction)
     track = pf.Track(args.particle, args.start, direction, args.energy, 0.0)
-    expected = np.mean([np.asarray(pf.expected(detector, params, track,
-                                               config=pf.TransportConfig(n_rays=4096),
+    config = pf.TransportConfig(n_rays=4096, emission_model=args.emission_model)
+    expected = np.mean([np.asarray(pf.expected(detector, params, track, config=config,
                                                key=jax.random.key(k)).charge, float)
                         for k in range(args.keys)], axis=0)
-    light = track_light(detector)
-    counts = np.zeros((args.events, detector.n_sensors))
-    for index in range(args.events):
-        tally = sample_track_tally(detector, params, track, jax.random.key(index), 7, index,
-                                   light)
-        counts[index] = np.asarray(tally.n_pe)
+    if args.cache and os.path.exists(args.cache):
+        counts = np.load(args.cache)["counts"]
+    else:
+        light = track_light(detector)
+        counts = np.zeros((args.events, detector.n_sensors))
+        for index in range(args.events):
+            tally = sample_track_tally(detector, params, track, jax.random.key(index), 7,
+                                       index, light)
+            counts[index] = np.asarray(tally.n_pe)
+        if args.cache:
+            np.savez_compressed(args.cache, counts=counts)
+    events = counts.shape[0]
     mean = counts.mean(axis=0)
-    error = counts.std(axis=0, ddof=1) / np.sqrt(args.events)
-    total_error = counts.sum(axis=1).std(ddof=1) / np.sqrt(args.events)
+    error = counts.std(axis=0, ddof=1) / np.sqrt(events)
+    total_error = counts.sum(axis=1).std(ddof=1) / np.sqrt(events)
     print(f"total p.e.: expected {expected.sum():.1f}, sampled {mean.sum():.1f} +- "
           f"{total_error:.1f}, ratio {expected.sum() / mean.sum():.4f}")
     lit = (expected > 0.5) | (mean > 0.5)
