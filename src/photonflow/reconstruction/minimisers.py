@@ -83,7 +83,7 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
             return _failure("the likelihood is not finite", start, iterations)
         if not np.all(np.isfinite(gradient)):
             return _failure("the gradient is not finite", start, iterations)
-        pairs, history, converged = (), [], False
+        pairs, history, converged, stopped = (), [], False, False
         for _ in range(settings.max_iterations):
             step = lbfgs_step(value_and_grad, free, value, gradient, pairs,
                               min_decrease=MIN_DECREASE * settings.tolerance,
@@ -100,6 +100,7 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
                 history.append(value)
                 converged = _stalled([first, *history], min(settings.patience, len(history)),
                                      settings.tolerance)
+                stopped = True
                 break
             free, value, gradient, pairs = step.point, step.value, step.gradient, step.pairs
             scale = pair_scale(pairs) if pairs else scale
@@ -122,9 +123,13 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
     minimum = bool(np.all(np.isfinite(covariance)))
     converged = converged and minimum
     if minimum:
-        reference, value, polished = polish(functions, detector, model, local_frame,
-                                            reference, data, hessian, settings.tolerance)
+        reference, value, remaining, polished = polish(functions, detector, model,
+                                                       local_frame, reference, data, hessian,
+                                                       settings.tolerance)
         evaluations += polished
+        # a line search that found no lower point in the last stage (float32's
+        # resolution of the likelihood), at a minimum the Newton step cannot improve
+        converged = converged or (stopped and remaining <= settings.tolerance)
     else:
         fixed = cast_track(reference, dtype)
         value = float(functions.value(free_from_track(frame, fixed), frame, fixed, data))
@@ -218,7 +223,7 @@ POLISH_STEPS = 3
 
 
 def polish(functions, detector, model, frame, track: Track, data, hessian,
-           tolerance: float) -> tuple[Track, float, int]:
+           tolerance: float) -> tuple[Track, float, float, int]:
     """Newton steps from a fitted ``track`` on its positive-definite ``hessian``
     (``local_hessian``, ``LOCAL`` coordinates about ``frame``'s axis, the rays fixed by
     ``track``), while a step is predicted to lower the negative log-likelihood by more
@@ -232,7 +237,9 @@ def polish(functions, detector, model, frame, track: Track, data, hessian,
 
     Returns:
         The track (the Hessian's point, or where the last accepted step ended), -log L
-        there, and the number of likelihood evaluations.
+        there, the decrease a Newton step from there predicts (g H^-1 g / 2, units of
+        -log L; infinite where the step would leave the detector or the energy range),
+        and the number of likelihood evaluations.
     """
     dtype = data.charge.dtype
     fixed = cast_track(track, dtype)
@@ -247,21 +254,27 @@ def polish(functions, detector, model, frame, track: Track, data, hessian,
     value, gradient = value_and_grad(point)
     evaluations, moved = 1, False
     low, high = (math.log(e) for e in model.energy_range)
-    for _ in range(POLISH_STEPS):
+
+    def newton(point, gradient):
         step = -np.linalg.solve(hessian, gradient)
         trial = point + step
         inside = float(detector.shape.distance_to_wall(trial[:3])) > 0.0 and \
             low < trial[6] < high
-        if not inside or -0.5 * float(gradient @ step) <= tolerance:
+        return trial, -0.5 * float(gradient @ step) if inside else math.inf
+
+    trial, remaining = newton(point, gradient)
+    for _ in range(POLISH_STEPS):
+        if not tolerance < remaining < math.inf:
             break
         trial_value, trial_gradient = value_and_grad(trial)
         evaluations += 1
         if not trial_value < value:
             break
         point, value, gradient, moved = trial, trial_value, trial_gradient, True
+        trial, remaining = newton(point, gradient)
     fitted = _concrete(track_from_local(frame, jnp.asarray(point, dtype))) if moved \
         else track
-    return fitted, value, evaluations
+    return fitted, value, remaining, evaluations
 
 
 def _failure(reason, start, iterations) -> RecoResult:
