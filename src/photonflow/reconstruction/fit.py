@@ -1,14 +1,14 @@
 """Event reconstruction: the track that maximises the likelihood of an event's hits.
 
 ``reconstruct`` seeds the fit from the hits alone (``seeding``), places a few starts
-behind the point-source vertex along the seeded direction and its opposite (the
-particle outruns its light), evaluates the likelihood at each and fits the best
-``RecoSettings.fits`` of them, and the next likeliest (at most ``restarts``) while none
-has converged; the best converged minimum is kept. The likelihood is the full
-charge + first-hit-time likelihood with dark noise (``likelihood.dense_sensor_nll``) of
-the expected response of the track (``expected_function``), in the free coordinates of
-``coordinates`` (the vertex stays inside the detector by the map). Two minimisers
-(``minimisers``):
+behind the point-source vertex along the seeded direction and its opposite (the particle
+outruns its light) and along directions spread over the sphere, evaluates the charge-
+only likelihood at each and fits the best ``RecoSettings.fits`` of them, and the next
+likeliest (at most ``restarts``) while none has converged; the best converged minimum is
+kept. The likelihood is the full charge + first-hit-time likelihood with dark noise
+(``likelihood.dense_sensor_nll``) of the expected response of the track
+(``expected_function``), in the free coordinates of ``coordinates`` (the vertex stays
+inside the detector by the map). Two minimisers (``minimisers``):
 
 - ``method="gradient"``: L-BFGS (``photonflow.lbfgs``: an Armijo line search driven from
   the host over one jitted value-and-gradient program) on exact gradients;
@@ -69,9 +69,12 @@ METHODS = ("gradient", "minuit")
 #: in units of the light's extent at the seeded energy (the particle outruns its light:
 #: the point-source vertex of a 1 GeV muon in SK lies 2-4 m ahead of its start).
 START_SHARES = (0.0, 0.35, 0.7)
-#: ... and of the starts in the ``RecoSettings.scan_directions`` directions spread over
-#: the sphere (the seeded direction can be far off in a small detector, where the
-#: point-source vertex falls near the wall).
+#: ... of the starts in the ``RecoSettings.scan_directions`` directions spread over the
+#: sphere from the point-source vertex (the seeded direction can be far off: a muon
+#: heading at a near wall puts the point-source vertex at the wall, its track's end) ...
+SCAN_SHARES = (0.35, 0.7, 1.0)
+#: ... and from the detector's centre (the point-source vertex of a small detector can
+#: fall near the wall, among the hits); also where the seed's energy is predicted.
 SCAN_SHARE = 0.35
 #: Energy (MeV) of the first prediction that seeds the energy from the total charge.
 REFERENCE_ENERGY = {"mu-": 1000.0, "e-": 500.0}
@@ -97,9 +100,9 @@ class RecoSettings:
         restarts: further starts, the next likeliest, fitted one after another while
             none of the fits has converged (a fit that ran off, to a saddle or to the
             iteration limit, is followed by a fit from another start).
-        scan_directions: starts in directions spread over the sphere, from the
-            point-source vertex and from the detector's centre, besides the seeded
-            direction and its opposite.
+        scan_directions: directions spread over the sphere with starts behind the
+            point-source vertex (``SCAN_SHARES``) and the detector's centre, besides
+            the seeded direction and its opposite.
         max_iterations: optimiser iterations per fit stage.
         tolerance: a fit stage ends when the negative log-likelihood fell by less than
             this in each of the last ``patience`` iterations (0.01: a change of the
@@ -120,7 +123,7 @@ class RecoSettings:
 
     fits: int = 2
     restarts: int = 2
-    scan_directions: int = 8
+    scan_directions: int = 12
     max_iterations: int = 200
     tolerance: float = 1e-2
     patience: int = 3
@@ -341,10 +344,9 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
     extent = float(model.at(energy).extent)
     candidates = [(axis, share) for axis in (direction, -direction) for share in START_SHARES]
     candidates = [(vertex, axis, share) for axis, share in candidates]
-    # the scan also from the detector's centre (the point-source vertex of a small
-    # detector can sit at the wall, among the hits)
-    candidates += [(origin, axis, SCAN_SHARE) for origin in (vertex, np.zeros(3))
-                   for axis in sphere_directions(settings.scan_directions)]
+    scan = sphere_directions(settings.scan_directions)
+    candidates += [(vertex, axis, share) for axis in scan for share in SCAN_SHARES]
+    candidates += [(np.zeros(3), axis, SCAN_SHARE) for axis in scan]
     starts = []
     for origin, axis, share in candidates:
         offset = share * extent
@@ -353,7 +355,10 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
         cast = cast_track(start, dtype)
         turned = fit_frame(detector.shape, axis, model.energy_range, particle,
                            settings.margin, dtype)
-        value = float(functions.value(free_from_track(turned, cast), turned, cast, data))
+        # ranked by the charge-only likelihood, as the fit's first stage: the seed's time
+        # is off for a start far from the point-source vertex
+        value = float(functions.value(free_from_track(turned, cast), turned, cast, data,
+                                      jnp.zeros((), dtype)))
         starts.append((value, start))
     starts.sort(key=lambda item: item[0] if math.isfinite(item[0]) else math.inf)
     fits = []
