@@ -51,11 +51,11 @@ def test_face_reach_stops_at_the_rim_of_a_cylinder():
     assert np.all(reach[tight] * radius[tight] >= room[tight] - (step + 0.05) * radius[tight])
 
 
-def _mirrored_light(smoothing, keys=KEYS, bare=False):
-    """Light of order-1 probes (random vertices in TOY_CYLINDER, isotropic directions,
-    1 / PROBES photons each) mirrored into each sensor, (keys, N); ``bare``: sensors
-    without lookup grids (every disc tested)."""
-    detector = preset_detector("TOY_CYLINDER")
+def _mirrored_light(smoothing, keys=KEYS, bare=False, name="TOY_CYLINDER"):
+    """Light of order-1 probes (random vertices in the detector ``name``, isotropic
+    directions, 1 / PROBES photons each) mirrored into each sensor, (keys, N); ``bare``:
+    sensors without lookup grids (every disc tested)."""
+    detector = preset_detector(name)
     shape = detector.shape
     sensors = sensors_for(detector)
     if bare:
@@ -123,3 +123,16 @@ def test_the_grid_lookup_finds_every_disc_a_mirrored_ray_crosses():
     every = _mirrored_light(1.0, keys=2, bare=True)
     assert grid.sum() > 0
     np.testing.assert_allclose(grid, every, rtol=1e-5, atol=1e-12)
+
+
+def test_discs_in_front_of_the_wall_are_found_where_the_ray_crosses_their_layer():
+    """IWCD's mPMTs stand 0.19-0.25 m in front of the wall (``Sensors.standoff``): looked
+    up around the wall point alone, a mirrored ray crossing a disc at 40 degrees or more
+    from the wall's normal was missed (the expected light of a 1 GeV muon fell 3.2 %
+    short of the sampled mode's, and the grid found 30 % of the light of testing every
+    disc); looked up where the ray crosses the sensors' layer, the grid finds more than
+    95 % of it (96 %: rays grazing the wall cross the layer along a long stretch)."""
+    grid = _mirrored_light(1.0, keys=1, name="IWCD").sum()
+    every = _mirrored_light(1.0, keys=1, bare=True, name="IWCD").sum()
+    assert every > 0
+    assert 0.95 * every < grid <= every * (1 + 1e-5)

@@ -49,6 +49,10 @@ class Sensors:
         face_reach: (N,) how far each disc's plane stays in front of its own wall face,
             in disc radii, between 1 and ``WIDEST_DISC`` (``face_reach_for``); None
             without a near grid.
+        standoff: () the sensors' median distance in front of the wall, m, where it
+            exceeds ``STANDOFF_MIN`` (IWCD's mPMTs: 0.19 m); None for discs on the
+            wall (``specular_probes`` looks the discs up where a ray crosses their
+            layer).
     """
 
     positions: jax.Array
@@ -57,6 +61,7 @@ class Sensors:
     grid: SensorGrid | None = None
     near_grid: SensorGrid | None = None
     face_reach: jax.Array | None = None
+    standoff: jax.Array | None = None
 
     @property
     def n(self) -> int:
@@ -94,7 +99,22 @@ def _build(detector: Detector, dtype, grid: SensorGrid | None, near: bool) -> Se
             near_grid=near_grid_for(detector) if near else None,
             face_reach=(strict_array(face_reach_for(detector), dtype)
                         if near and detector.shape.has_walls else None),
+            standoff=_standoff(detector, dtype),
         )
+
+
+#: Least median distance (m) of the sensors in front of the wall that ``Sensors``
+#: records as their ``standoff``.
+STANDOFF_MIN = 0.01
+
+
+def _standoff(detector: Detector, dtype):
+    """``Sensors.standoff`` of ``detector`` (numpy, once per build)."""
+    if not detector.shape.has_walls:
+        return None
+    positions = np.asarray(detector.sensor_positions, np.float64)
+    distance = float(np.median([detector.shape.distance_to_wall(p) for p in positions]))
+    return strict_array(distance, dtype) if distance > STANDOFF_MIN else None
 
 
 def sensor_grid_for(detector: Detector) -> SensorGrid:

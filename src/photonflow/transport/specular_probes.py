@@ -82,8 +82,14 @@ def specular_probes(params, shape, sensors: Sensors, reference, probes: Probes, 
     landing = wall_point + where(jnp.isfinite(t_exit), t_exit, 0.0)[:, None] * mirrored
     focusing = jax.lax.stop_gradient(focusing_ratio(shape, origins, wall_point, landing))
     counted = (probes.order > 0) | (focusing < FOCUSING_LIMIT) if source_quadrature else True
+    lookup = landing
+    if sensors.standoff is not None:  # discs in front of the wall: look them up where
+        # the ray crosses their layer (its wall point is standoff / cos away from them)
+        cos_wall = jnp.maximum(-jnp.sum(mirrored * shape.inward_normal(landing), axis=-1),
+                               MIN_LAYER_COS)
+        lookup = landing - (sensors.standoff / cos_wall)[:, None] * mirrored
     index, crossed, t_plane, cos_in, factor = _crossings(
-        sensors, wall_point, mirrored, landing, probes.order, smoothing
+        sensors, wall_point, mirrored, lookup, probes.order, smoothing
     )
     counts = crossed & (reaches_wall & counted)[:, None]
     t_plane = where(counts, t_plane, 0.0)  # finite attenuation (and gradient) elsewhere
@@ -102,9 +108,16 @@ def specular_probes(params, shape, sensors: Sensors, reference, probes: Probes, 
     return tuple(x.reshape(n_orders, n) for x in sums)
 
 
+#: Smallest cosine of incidence on the wall at which a mirrored ray's crossing of the
+#: sensors' layer (``Sensors.standoff``) is found (beyond it: 10 standoffs back). On
+#: IWCD the lookup there finds 96 % of the mirrored light that testing every disc finds
+#: (the wall point alone: 30 %); grazing rays cross the layer along a long stretch.
+MIN_LAYER_COS = 0.1
+
+
 def _crossings(sensors: Sensors, wall_point, mirrored, landing, order, smoothing):
     """The candidate discs (P, K) of mirrored rays leaving ``wall_point`` (P, 3) m along
-    ``mirrored`` and ending at ``landing`` (the discs near it), and where each ray
+    ``mirrored`` near ``landing`` (P, 3) m (the discs near it), and where each ray
     crosses each disc's plane: (index, crossed from the front within the widened
     radius, distance t m, cos of incidence, widening factor), all (P, K)."""
     n = sensors.positions.shape[0]
