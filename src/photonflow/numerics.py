@@ -13,6 +13,12 @@ def safe_sqrt(x):
     return where(positive, jnp.sqrt(where(positive, x, 1.0)), 0.0)
 
 
+def smoothstep(x):
+    """3 x^2 - 2 x^3 of ``x`` clipped to [0, 1] (dimensionless): a C1 step from 0 to 1."""
+    x = jnp.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
 def default_float_dtype() -> np.dtype:
     """JAX's default float dtype: float32, or float64 when 64-bit mode is on."""
     return np.dtype(jax.dtypes.canonicalize_dtype(np.float64))

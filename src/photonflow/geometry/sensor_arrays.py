@@ -113,7 +113,7 @@ def _standoff(detector: Detector, dtype):
     if not detector.shape.has_walls:
         return None
     positions = np.asarray(detector.sensor_positions, np.float64)
-    distance = float(np.median([detector.shape.distance_to_wall(p) for p in positions]))
+    distance = float(np.median(detector.shape.distance_to_wall(positions)))
     return strict_array(distance, dtype) if distance > STANDOFF_MIN else None
 
 

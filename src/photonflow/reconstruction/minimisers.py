@@ -158,6 +158,21 @@ HESSIAN_STEPS = (0.01, 0.01, 0.01, 0.05, 0.002, 0.002, 0.002)
 HESSIAN_STEP_SIGMA = 1.0
 
 
+def local_value_and_grad(functions, frame, track: Track, data):
+    """A function of a point (7,) of ``LOCAL`` coordinates about ``frame``'s axis giving
+    the full likelihood's value (float) and gradient (float64 (7,)) there, the rays
+    fixed by ``track``."""
+    dtype = data.charge.dtype
+    one = jnp.asarray(1.0, dtype)
+
+    def value_and_grad(point):
+        value, gradient = functions.value_and_grad(jnp.asarray(point, dtype),
+                                                   LOCAL_COORDINATES, frame, track, data, one)
+        return float(value), np.asarray(gradient, np.float64)
+
+    return value_and_grad
+
+
 def local_hessian(functions, frame, track: Track, data, wall: float = math.inf) -> np.ndarray:
     """(7, 7) Hessian of the negative log-likelihood at ``track`` in ``LOCAL``
     coordinates about ``frame``'s axis (units of the coordinates: m, ns, tangents, log
@@ -173,14 +188,11 @@ def local_hessian(functions, frame, track: Track, data, wall: float = math.inf) 
     curvature over its error region, where a track likelihood has curvature structure
     on sub-sigma scales that can make pointwise or 0.1-sigma second derivatives
     indefinite at a minimum (``docs/reconstruction.md``)."""
-    dtype = data.charge.dtype
-    centre = np.asarray(local_from_track(track, dtype), np.float64)
-    one = jnp.asarray(1.0, dtype)
+    centre = np.asarray(local_from_track(track, data.charge.dtype), np.float64)
+    value_and_grad = local_value_and_grad(functions, frame, track, data)
 
     def gradient(point):
-        return np.asarray(functions.value_and_grad(jnp.asarray(point, dtype),
-                                                   LOCAL_COORDINATES, frame, track, data,
-                                                   one)[1], np.float64)
+        return value_and_grad(point)[1]
 
     def differences(steps):
         columns = [(gradient(centre + h * e) - gradient(centre - h * e)) / (2.0 * h)
@@ -243,13 +255,7 @@ def polish(functions, detector, model, frame, track: Track, data, hessian,
     """
     dtype = data.charge.dtype
     fixed = cast_track(track, dtype)
-    one = jnp.asarray(1.0, dtype)
-
-    def value_and_grad(point):
-        value, gradient = functions.value_and_grad(jnp.asarray(point, dtype),
-                                                   LOCAL_COORDINATES, frame, fixed, data, one)
-        return float(value), np.asarray(gradient, np.float64)
-
+    value_and_grad = local_value_and_grad(functions, frame, fixed, data)
     point = np.asarray(local_from_track(fixed, dtype), np.float64)
     value, gradient = value_and_grad(point)
     evaluations, moved = 1, False

@@ -60,7 +60,7 @@ import numpy as np
 
 from ..constants import SPEED_OF_LIGHT
 from ..geometry.sensor_arrays import Sensors
-from ..numerics import safe_sqrt, where
+from ..numerics import safe_sqrt, smoothstep, where
 from ..response.detection import acceptance_at_cos
 from .optics import interaction_rates, orthonormal_basis, travel_time
 
@@ -231,8 +231,22 @@ def top_blend(score, count: int, floor: float = 0.0, ramp: float = 0.0,
     entry leaving the selection has weight 0: whatever it selects enters continuously)."""
     values, index = jax.lax.top_k(score, count + 1)
     low = jnp.maximum(floor, values[-1])
-    x = jnp.clip((values[:-1] - low) / (ramp + relative_ramp * low), 0.0, 1.0)
-    return index[:-1], x * x * (3.0 - 2.0 * x)
+    return index[:-1], smoothstep((values[:-1] - low) / (ramp + relative_ramp * low))
+
+
+#: Distances to a disc are softened by this share of its radius (no singularity where the
+#: light passes through a disc; relative error ~(r / 4 b)^2 at b off it).
+SOFTENING = 0.25
+
+
+def beside_track(positions, radius, position, direction):
+    """(along, across) (N,) m of discs (centres (N, 3) m, radii (N,) m) from a track's
+    start ``position`` (3,) m along its unit ``direction`` and across it, ``across``
+    softened by ``SOFTENING`` x r."""
+    offset = positions - position
+    along = offset @ direction
+    across2 = jnp.maximum(jnp.sum(offset * offset, axis=-1) - along * along, 0.0)
+    return along, jnp.sqrt(across2 + (SOFTENING * radius) ** 2)
 
 
 def seen_disc(to_sensor, normals, radius, params):
@@ -241,7 +255,7 @@ def seen_disc(to_sensor, normals, radius, params):
     ``radius`` (...) m, (length, cos_in, reach, share): the distance softened by r/4 (m),
     the cosine of incidence, sqrt(length^2 + r^2) (m), and the disc's solid angle over
     2 pi (0 from behind) x QE x angular acceptance x attenuation (dimensionless)."""
-    length = jnp.sqrt(jnp.sum(to_sensor * to_sensor, axis=-1) + (0.25 * radius) ** 2)
+    length = jnp.sqrt(jnp.sum(to_sensor * to_sensor, axis=-1) + (SOFTENING * radius) ** 2)
     cos_in = -jnp.sum(to_sensor * normals, axis=-1) / length
     radius2 = radius * radius
     reach = jnp.sqrt(length * length + radius2)
@@ -308,11 +322,7 @@ def _disc_light(positions, normals, radius, *, params, position, direction, time
     ``breaks`` (P,) (``PANEL_BREAKS``, or ``_peak_breaks``), clipped to each sensor's
     range, and at those of the model's knots."""
     dtype = positions.dtype
-    offset = positions - position  # (N, 3)
-    along = offset @ direction
-    across2 = jnp.maximum(jnp.sum(offset * offset, axis=-1) - along * along, 0.0)
-    soft = 0.25 * radius
-    across = jnp.sqrt(across2 + soft * soft)
+    along, across = beside_track(positions, radius, position, direction)
     u_start = _seen_cos(along, across)
     u_end = _seen_cos(along - extent, across)
     # panel ends: the fixed breaks (clipped to the sensor's range) and the cosines under
@@ -343,7 +353,7 @@ def _disc_light(positions, normals, radius, *, params, position, direction, time
     light = weight * emission.density(s, u, width=width) * jacobian * share
     light = where(cos_in > 0.0, light, 0.0)
     offset_mean, offset_variance = emission.time_moments(s)
-    reference = time + travel_time(jnp.sqrt(jnp.sum(offset * offset, axis=-1)), params)
+    reference = time + travel_time(jnp.linalg.norm(positions - position, axis=-1), params)
     arrival = time + s / SPEED_OF_LIGHT + offset_mean + travel_time(length, params) \
         - reference[:, None]
     # moment-matched components: the light of DIRECT_COMPONENTS stretches of the track

@@ -46,7 +46,7 @@ import jax.numpy as jnp
 
 from ..constants import SPEED_OF_LIGHT
 from ..emission.spline import _PATCH, _bicubic_weights, _footprint_terms
-from ..numerics import where
+from ..numerics import smoothstep, where
 from . import track_direct
 from .optics import travel_time
 from .track_direct import LIGHT_FLOOR
@@ -88,11 +88,7 @@ def far_direct_light(positions, normals, radius, *, params, position, direction,
     dtype = positions.dtype
     root = emission.moment_root
     extent, total_yield = emission.extent, emission.total_yield
-    offset = positions - position
-    along = offset @ direction
-    across2 = jnp.maximum(jnp.sum(offset * offset, axis=-1) - along * along, 0.0)
-    soft = 0.25 * radius
-    across = jnp.sqrt(across2 + soft * soft)
+    along, across = track_direct.beside_track(positions, radius, position, direction)
     distance = jnp.sqrt(along * along + across * across)
     cos0 = along / distance
     # footprint half-width at the point that sees the sensor under the peak angle
@@ -118,8 +114,7 @@ def far_direct_light(positions, normals, radius, *, params, position, direction,
         radius[:, None, None], params)
     factor = share * length_ * length_
     if length is not None:  # the wall: a smooth cut, so the light moves continuously
-        cut = jnp.clip((length - s) / WALL_RAMP + 0.5, 0.0, 1.0)
-        factor = factor * cut * cut * (3.0 - 2.0 * cut)
+        factor = factor * smoothstep((length - s) / WALL_RAMP + 0.5)
     light = light0[..., None] * node_weights * factor  # (N, C, 2)
     charge = jnp.sum(light, axis=-1)
     offset_mean, offset_variance = emission.time_moments(s)
