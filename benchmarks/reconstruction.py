@@ -1,5 +1,6 @@
 """Reconstruction benchmark (issue 25): ``python benchmarks/reconstruction.py [--events N]
-[--minuit M] [--out FILE.jsonl] [--fits F] [--emission-model spline|siren|tables]``.
+[--minuit M] [--out FILE.jsonl] [--fits F] [--emission-model spline|siren|tables]
+[--rays-every-evaluation]``.
 
 SK with the default parameters, 1 GeV muons from the generator and the sampled mode
 (vertices uniform at least 2 m inside the walls, isotropic directions, seed 7), each
@@ -14,6 +15,7 @@ Prints the medians at the end.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -47,6 +49,9 @@ def main() -> None:
                         help="RecoSettings.fits (default: RecoSettings' own)")
     parser.add_argument("--emission-model", default="spline",
                         help="TransportConfig.emission_model: spline, siren or tables")
+    parser.add_argument("--rays-every-evaluation", action="store_true",
+                        help="RecoSettings(hold_indirect=False): trace the indirect light's"
+                        " rays at every evaluation instead of holding it per fit stage")
     args = parser.parse_args()
     import photonflow as pf
     from photonflow.benchmarking import machine_description
@@ -54,7 +59,9 @@ def main() -> None:
     detector = pf.load_detector("SK")
     params = pf.default_params(detector)
     config = pf.TransportConfig(n_rays=1024, emission_model=args.emission_model)
-    settings = pf.RecoSettings() if args.fits is None else pf.RecoSettings(fits=args.fits)
+    settings = pf.RecoSettings(hold_indirect=not args.rays_every_evaluation)
+    if args.fits is not None:
+        settings = dataclasses.replace(settings, fits=args.fits)
     out = open(args.out, "a") if args.out else None  # noqa: SIM115
     rows = []
     print(f"Machine: {machine_description()}", flush=True)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import math
 import time as clock
 from weakref import WeakKeyDictionary
@@ -46,7 +47,7 @@ from ..generator.track import Track
 from ..geometry.sensor_arrays import sensors_for
 from ..likelihood import check_overdispersion, dark_expectation, dense_sensor_nll, hit_arrays
 from ..numerics import default_float_dtype
-from ..transport.expected import expected_function
+from ..transport.expected import expected_function, held_indirect_function
 from ..transport.optics import TransportConfig
 from ..transport.tracks import detector_medium
 from .coordinates import (
@@ -57,7 +58,7 @@ from .coordinates import (
     track_from_local,
     vertex_from_free,
 )
-from .minimisers import cast_track, minimise_gradient, minimise_minuit
+from .minimisers import cast_track, minimise_gradient, minimise_minuit, staged_data
 from .result import RecoResult
 from .seeding import energy_from_charge, point_source_seed
 
@@ -76,6 +77,9 @@ SCAN_SHARES = (0.35, 0.7, 1.0)
 #: ... and from the detector's centre (the point-source vertex of a small detector can
 #: fall near the wall, among the hits); also where the seed's energy is predicted.
 SCAN_SHARE = 0.35
+#: The start whose held indirect light all starts are ranked with: along the seeded
+#: direction, ``START_SHARES[1]`` behind the point-source vertex.
+RANKING_START = 1
 #: Energy (MeV) of the first prediction that seeds the energy from the total charge.
 REFERENCE_ENERGY = {"mu-": 1000.0, "e-": 500.0}
 #: Predictions of the seed's total charge, each at the last energy estimate.
@@ -119,6 +123,11 @@ class RecoSettings:
         overdispersion: r of the likelihood's per-sensor counts (variance mu + r mu^2;
             ``photonflow.likelihood``), dimensionless in [0, 0.5]; 0 is Poisson.
             ``docs/reconstruction.md`` says what it does to SK muons.
+        hold_indirect: each fit stage holds the indirect light computed at its
+            reference track, to first order in the track's move
+            (``held_indirect_function``; a value and gradient then costs the direct
+            light's alone, ~3x less in SK); False traces the indirect light's rays at
+            every evaluation.
     """
 
     fits: int = 2
@@ -133,6 +142,7 @@ class RecoSettings:
     margin: float = 0.0
     dtype: str | None = None
     overdispersion: float = 0.0
+    hold_indirect: bool = True
 
     def __post_init__(self):
         check_overdispersion(self.overdispersion)
@@ -219,10 +229,13 @@ class _Functions:
     """The jitted pieces of one (detector, dtype, config): the likelihood of a track in
     free coordinates, ``value(free, frame, reference, data)``, and its value and gradient
     in free or ``LOCAL`` coordinates, ``value_and_grad(x, local, frame, reference, data,
-    time_weight)`` (``local``: a bool array, traced: one program for both)."""
+    time_weight)`` (``local``: a bool array, traced: one program for both), each with
+    the indirect light by rays from ``reference`` or held (``data.held``); the held
+    indirect light of a track, ``hold(track, data, slopes=True)``."""
 
     value: object
     value_and_grad: object
+    hold: object
     total_charge: object
     window: tuple[float, float]
     emission: object
@@ -234,7 +247,9 @@ class _EventData:
     """The event as dense per-sensor arrays and the response it is read with, and the
     large arrays of the prediction (the emission model of the hypothesis fitted, the
     detector's ``Sensors``): arguments of the jitted functions, not constants of their
-    programs (``expected_function``)."""
+    programs (``expected_function``); ``held``: None (the indirect light by rays from
+    the reference track), or the indirect light held at the reference
+    (``held_indirect_function``; the prediction then costs the direct light's alone)."""
 
     hit: jax.Array
     charge: jax.Array
@@ -244,11 +259,12 @@ class _EventData:
     spe_width: jax.Array
     sensors: object
     emission: object = None
+    held: object = None
 
 
 jax.tree_util.register_dataclass(
     _EventData, data_fields=["hit", "charge", "time", "params", "dark_rate", "spe_width",
-                             "sensors", "emission"],
+                             "sensors", "emission", "held"],
     meta_fields=[])
 
 #: Jitted functions per detector object, keyed by (dtype, config, overdispersion).
@@ -273,7 +289,7 @@ def _build_functions(detector, dtype, config: TransportConfig,
 
     def track_nll(track, reference, data, time_weight=1.0):
         prediction = predict(data.params, track, None, reference, emission=data.emission,
-                             arrays=data.sensors)
+                             arrays=data.sensors, held=data.held)
         weight = jnp.asarray(time_weight, data.charge.dtype)
         return jnp.sum(dense_sensor_nll(prediction, data.hit, data.charge, data.time,
                                         data.dark_rate, data.spe_width, window,
@@ -294,9 +310,18 @@ def _build_functions(detector, dtype, config: TransportConfig,
         return jnp.sum(predict(data.params, track, emission=data.emission,
                                arrays=data.sensors).charge)
 
+    hold_light = held_indirect_function(detector, dtype, config=config)
+
+    @functools.partial(jax.jit, static_argnames="slopes")
+    def hold(track, data, slopes=True):
+        return hold_light(data.params, track, emission=data.emission, arrays=data.sensors,
+                          slopes=slopes)
+
     medium = detector_medium(detector)
     return _Functions(value=jax.jit(free_nll),
                       value_and_grad=jax.jit(jax.value_and_grad(coordinate_nll)),
+                      hold=lambda track, data, slopes=True: hold(
+                          track, dataclasses.replace(data, held=None), slopes),
                       total_charge=total_charge, window=window,
                       emission=lambda particle: emission_model(particle, medium, dtype,
                                                                config.emission_model),
@@ -347,17 +372,24 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
     scan = sphere_directions(settings.scan_directions)
     candidates += [(vertex, axis, share) for axis in scan for share in SCAN_SHARES]
     candidates += [(np.zeros(3), axis, SCAN_SHARE) for axis in scan]
-    starts = []
+    tracks = []
     for origin, axis, share in candidates:
         offset = share * extent
-        start = Track(particle, frame_inside(frame, origin - offset * axis), axis, energy,
-                      float(seed.time) - offset / SPEED_OF_LIGHT)
+        tracks.append(Track(particle, frame_inside(frame, origin - offset * axis), axis,
+                            energy, float(seed.time) - offset / SPEED_OF_LIGHT))
+    # every start sees the indirect light held at the seeded direction's middle start (a
+    # smooth background of the right size: the same likeliest start as each start's own
+    # rays in the benchmark's events, at a quarter of the cost)
+    ranking = staged_data(functions, data, cast_track(tracks[RANKING_START], dtype),
+                          settings, slopes=False)
+    starts = []
+    for start in tracks:
         cast = cast_track(start, dtype)
-        turned = fit_frame(detector.shape, axis, model.energy_range, particle,
+        turned = fit_frame(detector.shape, start.direction, model.energy_range, particle,
                            settings.margin, dtype)
         # ranked by the charge-only likelihood, as the fit's first stage: the seed's time
         # is off for a start far from the point-source vertex
-        value = float(functions.value(free_from_track(turned, cast), turned, cast, data,
+        value = float(functions.value(free_from_track(turned, cast), turned, cast, ranking,
                                       jnp.zeros((), dtype)))
         starts.append((value, start))
     starts.sort(key=lambda item: item[0] if math.isfinite(item[0]) else math.inf)

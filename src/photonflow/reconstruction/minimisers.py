@@ -69,10 +69,11 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
                           start.particle, settings.margin, dtype)
         fixed = cast_track(reference, dtype)
         weight = jnp.asarray(float(use_time), dtype)
+        staged = staged_data(functions, data, fixed, settings)
 
-        def value_and_grad(x, frame=frame, fixed=fixed, weight=weight):
+        def value_and_grad(x, frame=frame, fixed=fixed, weight=weight, staged=staged):
             value, gradient = functions.value_and_grad(jnp.asarray(x, dtype), FREE, frame,
-                                                       fixed, data, weight)
+                                                       fixed, staged, weight)
             return float(value), np.asarray(gradient, np.float64)
 
         free = np.asarray(free_from_track(frame, fixed), np.float64)
@@ -116,6 +117,9 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
         reference = fitted
         if use_time and not moved:
             break
+    # the last stage's held light (to first order about a track within the refresh
+    # thresholds of this one)
+    data = staged
     hessian, local_frame = _hessian(functions, detector, model, data, reference)
     covariance = _inverse(hessian)
     # a point whose Hessian is not positive definite is not a minimum (a saddle, or a
@@ -138,6 +142,15 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
                       energy=float(reference.energy), covariance=covariance, nll=value,
                       particle=start.particle, converged=converged, iterations=iterations,
                       seconds=0.0, method="gradient", evaluations=evaluations)
+
+
+def staged_data(functions, data, track: Track, settings, slopes: bool = True):
+    """``data`` for a fit stage about ``track`` (the reference): with the indirect light
+    held at it (with its ``slopes``, or without) where ``settings.hold_indirect``, else
+    as it is (rays from the reference at every evaluation)."""
+    if not settings.hold_indirect:
+        return data
+    return dataclasses.replace(data, held=functions.hold(track, data, slopes))
 
 
 def _stalled(values, patience: int, tolerance: float) -> bool:
@@ -300,9 +313,10 @@ def minimise_minuit(functions, detector, model, data, start, settings) -> RecoRe
         frame = fit_frame(detector.shape, reference.direction, model.energy_range,
                           start.particle, settings.margin, dtype)
         fixed = cast_track(reference, dtype)
+        staged = staged_data(functions, data, fixed, settings)
 
-        def objective(x, frame=frame, fixed=fixed):
-            return float(functions.value(jnp.asarray(x, dtype), frame, fixed, data))
+        def objective(x, frame=frame, fixed=fixed, staged=staged):
+            return float(functions.value(jnp.asarray(x, dtype), frame, fixed, staged))
 
         free = np.asarray(free_from_track(frame, fixed), np.float64)
         minuit = Minuit(objective, free, name=FREE_NAMES)

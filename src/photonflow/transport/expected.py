@@ -44,7 +44,7 @@ from ..sources import check_source
 from .direct import direct_light_jit
 from .indirect import indirect_light_jit
 from .optics import TransportConfig, check_config
-from .track_expected import track_expected_jit
+from .track_expected import hold_indirect, track_expected_jit
 from .tracks import check_track, detector_medium, principal_sensor_model
 
 
@@ -141,10 +141,12 @@ def expected_function(
     grid: SensorGrid | None = None,
 ):
     """The prepared predictor: a function ``predict(params, source, key=None,
-    reference=None, *, emission=None, arrays=None) -> Prediction`` (``reference``: see
-    ``expected``; ``emission``, ``arrays``: the emission model and the ``Sensors`` to use
-    instead of the ones closed over, to pass them as arguments of a jitted caller) with
-    the detector's arrays and grids built once and closed over.
+    reference=None, *, emission=None, arrays=None, held=None) -> Prediction``
+    (``reference``: see ``expected``; ``emission``, ``arrays``: the emission model and
+    the ``Sensors`` to use instead of the ones closed over, to pass them as arguments of
+    a jitted caller; ``held``: for a track, the indirect light of a nearby track from
+    ``held_indirect_function``, used instead of tracing rays) with the detector's arrays
+    and grids built once and closed over.
 
     ``expected`` calls it (and checks concrete inputs first); use it directly in code
     that calls the prediction many times outside ``jit`` with values known to be good
@@ -159,6 +161,31 @@ def expected_function(
         config: static transport settings (default ``TransportConfig()``).
         grid: sensor lookup grid (default: built once per detector object).
     """
+    return _functions(detector, dtype, config, grid)[0]
+
+
+def held_indirect_function(
+    detector: Detector,
+    dtype=None,
+    *,
+    config: TransportConfig | None = None,
+    grid: SensorGrid | None = None,
+):
+    """The indirect light of a track to hold while it moves: a function ``hold(params,
+    track, key=None, *, emission=None, arrays=None, slopes=True)`` giving a tuple of
+    ``track_expected.HeldIndirect`` (one per emission part: Cherenkov, then
+    scintillation where the medium has it), computed by the track's own rays with its
+    first derivatives in the track (``slopes`` False: without them, ~10x faster), for
+    ``expected_function``'s ``held``. A prediction that holds it costs the direct
+    light's quadrature alone (a fit's stages hold it and refresh it as the track
+    moves: ``photonflow.reconstruct``). Arguments as ``expected_function``'s; lengths m,
+    times ns, charges p.e."""
+    return _functions(detector, dtype, config, grid)[1]
+
+
+def _functions(detector: Detector, dtype, config, grid) -> tuple:
+    """(predict, hold) of ``expected_function`` and ``held_indirect_function``, cached
+    per detector object, dtype and config without ``grid``."""
     config = check_config(TransportConfig() if config is None else config)
     dtype = default_float_dtype() if dtype is None else jnp.dtype(dtype)
     if grid is not None:
@@ -170,7 +197,8 @@ def expected_function(
 
 
 def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
-    """``expected_function``'s predictor, uncached."""
+    """(predict, hold): ``expected_function``'s predictor and ``held_indirect_function``'s
+    function, uncached."""
     cast = functools.partial(strict_array, dtype=dtype)
     sensors = sensors_for(detector, dtype, grid)
     medium = detector_medium(detector)
@@ -181,38 +209,53 @@ def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
         return (cherenkov_spectral_factor(sensor, medium),
                 scintillation_spectral_factor(sensor, medium))
 
+    def track_inputs(track, emission) -> tuple:
+        """(model, its spectral factor, scintillation) of a ``Track``'s light."""
+        model = (emission_model(track.particle, medium, dtype, config.emission_model)
+                 if emission is None else emission)
+        scintillator = scintillation_emission(track.particle, medium, dtype)
+        cherenkov_factor, scintillation_factor = spectral()
+        scintillation = None if scintillator is None else (scintillator,
+                                                           cast(scintillation_factor))
+        return model, cast(cherenkov_factor), scintillation
+
     def predict(params: Params, source, key=None, reference=None, *, emission=None,
-                arrays: Sensors | None = None) -> Prediction:
+                arrays: Sensors | None = None, held=None) -> Prediction:
         """Expected p.e. and time mixture per sensor (see ``expected``); no checks.
         ``emission`` (a track's emission model, default the shipped one of its
         particle, ``emission.emission_model``) and ``arrays`` (the detector's
         ``Sensors``, default ``sensors_for(detector, dtype)``) may be passed in:
         a function that jits a predictor call and takes them as its arguments keeps
         them out of its compiled program, whose constants they would otherwise be
-        (an SK spline table is 21 MB, the SK sensors 19 MB)."""
+        (an SK spline table is 21 MB, the SK sensors 19 MB). ``held``: a track's held
+        indirect light (``held_indirect_function``), or None."""
         sensors_used = sensors if arrays is None else arrays
         if isinstance(source, Track):
-            model = (emission_model(source.particle, medium, dtype, config.emission_model)
-                     if emission is None else emission)
-            scintillator = scintillation_emission(source.particle, medium, dtype)
-            cherenkov_factor, scintillation_factor = spectral()
-            scintillation = None if scintillator is None else (scintillator,
-                                                               cast(scintillation_factor))
+            model, factor, scintillation = track_inputs(source, emission)
             if reference is not None:
                 reference = jax.tree.map(cast, reference)
             return track_expected_jit(
                 sensors_used, jax.tree.map(cast, params), jax.tree.map(cast, source), model,
-                cast(cherenkov_factor), key, reference, scintillation,
-                shape=detector.shape, config=config,
+                factor, key, reference, scintillation, held, shape=detector.shape,
+                config=config,
             )
-        if reference is not None:
-            raise ConfigError("reference: only a Track source takes a reference track")
+        if reference is not None or held is not None:
+            raise ConfigError("reference, held: only a Track source takes them")
         return expected_jit(
             sensors_used, jax.tree.map(cast, params), jax.tree.map(cast, source), key,
             shape=detector.shape, config=config,
         )
 
-    return predict
+    def hold(params: Params, track: Track, key=None, *, emission=None,
+             arrays: Sensors | None = None, slopes: bool = True) -> tuple:
+        """The held indirect light of ``track`` (``held_indirect_function``)."""
+        model, factor, scintillation = track_inputs(track, emission)
+        return hold_indirect(sensors if arrays is None else arrays,
+                             jax.tree.map(cast, params), jax.tree.map(cast, track), model,
+                             factor, key, scintillation, shape=detector.shape,
+                             config=config, slopes=slopes)
+
+    return predict, hold
 
 
 #: Prepared predictors per detector object (weak: a pure cache), keyed by (dtype, config).

@@ -30,6 +30,7 @@ from ..geometry.sensor_arrays import Sensors
 from ..inline_jit import inline_jit
 from ..numerics import safe_sqrt, where
 from ..prediction import Prediction
+from ..pytree import pytree_dataclass
 from ..response.expected import SensorLight, expected_response
 from .indirect import indirect_light_jit
 from .track_direct import DIRECT_COMPONENTS, LIGHT_FLOOR, mixed_moments, track_direct_light
@@ -37,8 +38,73 @@ from .track_moments import tabulated_direct_light
 from .track_rays import TrackEmitter, kernel_width
 
 
+@pytree_dataclass
+class HeldIndirect:
+    """The indirect light of one emission part (the Cherenkov light, or the
+    scintillation light) of a track, computed once at that track with its first
+    derivatives and held while the track moves (``hold_indirect``; the fit stages of
+    ``photonflow.reconstruct``).
+
+    A prediction that takes it (``track_sensor_light``'s ``held``) uses its components
+    instead of tracing rays, to first order in the track's move z = (position - held
+    position, direction - held direction, log(energy / held energy)):
+    charge = charge_0 x (direct light / direct_total) x exp(charge_slope . z) (the
+    light emitted inside the detector follows the direct light; the slopes are those
+    of the indirect light's share of it), means + (time - held time) + mean_slope . z,
+    variances + variance_slope . z (kept >= 0). At the held track its value and
+    gradient are the full prediction's with the rays fixed there (``expected``'s
+    ``reference``); away from it, the error is of second order in z (the indirect
+    light is smooth over metres and tens of degrees).
+
+    Attributes:
+        charge: (N, 2 n_bounces) p.e. of sensors of efficiency 1, by the kind of the
+            last vertex (bulk scatter, surface) and its order.
+        time_mean: (N, 2 n_bounces) mean arrival times, ns. time_variance: ns^2.
+        charge_slope: (N, 2 n_bounces, 7) d log(charge / direct_total) / dz (per m,
+            per unit of the direction's components, per unit of log energy).
+        mean_slope: (N, 2 n_bounces, 7) d time_mean / dz, ns per unit of z.
+        variance_slope: (N, 2 n_bounces, 7) d time_variance / dz, ns^2 per unit of z.
+        residual_weight: photons still alive at the bounce cap.
+        direct_total: the direct light's total over the sensors at the held track, p.e.
+        position: (3,) m, direction: (3,) unit, log_energy: log(MeV), time: ns: the
+            held track.
+    """
+
+    charge: jax.Array
+    time_mean: jax.Array
+    time_variance: jax.Array
+    charge_slope: jax.Array
+    mean_slope: jax.Array
+    variance_slope: jax.Array
+    residual_weight: jax.Array
+    direct_total: jax.Array
+    position: jax.Array
+    direction: jax.Array
+    log_energy: jax.Array
+    time: jax.Array
+
+    def move(self, track, direction, direct_total) -> list:
+        """[charge, mean, variance] (N, 2 n_bounces) of the held light for ``track``
+        (unit ``direction``; its direct light's total ``direct_total`` p.e.)."""
+        z = jnp.concatenate([track.position - self.position, direction - self.direction,
+                             jnp.log(track.energy)[None] - self.log_energy])
+        positive = self.direct_total > 0
+        scale = where(positive, direct_total / where(positive, self.direct_total, 1.0), 1.0)
+        # the exponent bounded smoothly (a move far beyond the linear range, early in a
+        # fit, cannot overflow)
+        exponent = HELD_EXPONENT * jnp.tanh(self.charge_slope @ z / HELD_EXPONENT)
+        return [self.charge * scale * jnp.exp(exponent),
+                self.time_mean + (track.time - self.time) + self.mean_slope @ z,
+                jnp.maximum(self.time_variance + self.variance_slope @ z, 0.0)]
+
+
+#: Bound of the held charge's exponent (``HeldIndirect.move``): a factor of e^2 at most.
+HELD_EXPONENT = 2.0
+
+
 def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, spectral,
-                       key=None, reference=None, scintillation=None, *, shape, config):
+                       key=None, reference=None, scintillation=None, held=None, *, shape,
+                       config):
     """The ``SensorLight`` of one track (a ``Track`` of one particle, leaves of the
     computation's dtype): (N, C + 2 n_bounces) p.e. of sensors of efficiency 1 (C direct
     components, ``track_direct.DIRECT_COMPONENTS``, then by the kind of the last vertex
@@ -51,33 +117,25 @@ def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, s
     (``track_rays``; None: the track itself, held fixed). ``scintillation``: None, or
     (the medium's ``ScintillationModel``, its ``scintillation_spectral_factor``): the
     isotropic scintillation light is added as ``SCINTILLATION_COMPONENTS`` x (number of
-    decay times) exponentially modified components (``time_tau``). Traced inline."""
-    key = jax.random.key(0) if key is None else key
-    rays_from = jax.tree.map(jax.lax.stop_gradient, track if reference is None else reference)
+    decay times) exponentially modified components (``time_tau``). ``held``: None, or
+    the ``hold_indirect`` of a nearby track (a tuple of ``HeldIndirect``, one per
+    emission part), used instead of the rays (``reference`` and ``key`` then unused).
+    Traced inline."""
     direction = track.direction / jnp.linalg.norm(track.direction)
     length = _inside_length(shape, track.position, direction)
-    emission = model.at(track.energy)
-    rays_emission = emission if reference is None else model.at(rays_from.energy)
-    charges, means, variances, residual, start = _emitted_light(
-        sensors, params.replace(quantum_efficiency=params.quantum_efficiency * spectral),
-        track, direction, length, emission, rays_emission, rays_from, key,
-        shape=shape, config=config)
+    parts = _part_light(sensors, params, track, direction, length, model, spectral, key,
+                        reference, scintillation, held, shape=shape, config=config)
+    charges, means, variances, residual, start = parts[0]
     onset = earliest_arrival(sensors, params, track.position, direction, track.time, length)
     charges, means, variances, tau = _skewed_indirect(charges, means, variances, onset)
     if scintillation is not None:
-        scintillator, factor = scintillation
-        light = scintillator.at(track.energy)
-        rays_light = light if reference is None else scintillator.at(rays_from.energy)
-        parts = _emitted_light(
-            sensors, params.replace(quantum_efficiency=params.quantum_efficiency * factor),
-            track, direction, length, light, rays_light, rays_from,
-            jax.random.fold_in(key, 1), shape=shape, config=config)
-        delayed = _decayed(*parts[:3], scintillator.decay_times, scintillator.decay_weights)
+        scintillator = scintillation[0]
+        delayed = _decayed(*parts[1][:3], scintillator.decay_times, scintillator.decay_weights)
         tau = jnp.concatenate([tau, delayed[3]], axis=1)
         charges, means, variances = (jnp.concatenate([a, b], axis=1) for a, b in
                                      zip((charges, means, variances), delayed[:3],
                                          strict=True))
-        residual = residual + parts[3]
+        residual = residual + parts[1][3]
     has_light = charges > LIGHT_FLOOR
     return SensorLight(
         charge=charges,
@@ -87,6 +145,105 @@ def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, s
         window=tuple(float(x) for x in config.window),
         time_tau=tau,
     )
+
+
+@inline_jit(static_argnames=("shape", "config", "slopes"))
+def hold_indirect(sensors: Sensors, params, track, model: SplineEmission, spectral,
+                  key=None, scintillation=None, *, shape, config, slopes: bool = True
+                  ) -> tuple:
+    """The indirect light of ``track`` by its own rays and its first derivatives
+    (forward mode, 7 directions; ``slopes`` False: zero, at ~1/10 of the cost), to hold
+    (``HeldIndirect``, one per emission part: the Cherenkov light, then the
+    scintillation light where ``scintillation`` is given); other arguments as
+    ``track_sensor_light``'s."""
+    indirect = slice(DIRECT_COMPONENTS, None)
+    fixed = jax.tree.map(jax.lax.stop_gradient, track)
+    direction = fixed.direction / jnp.linalg.norm(fixed.direction)
+
+    def slices_at(energy):
+        return _slices(model, scintillation, energy, fixed.energy)
+
+    def light(z, slices):
+        moved = fixed.replace(position=fixed.position + z[:3], direction=direction + z[3:6],
+                              energy=fixed.energy * jnp.exp(z[6]))
+        unit = moved.direction / jnp.linalg.norm(moved.direction)
+        length = _inside_length(shape, moved.position, unit)
+        parts = _part_light(sensors, params, moved, unit, length, model, spectral, key,
+                            fixed, scintillation, None, slices, shape=shape, config=config)
+        out = []
+        for charges, means, variances, residual, _ in parts:
+            total = jnp.sum(charges[:, :DIRECT_COMPONENTS])
+            share = charges[:, indirect] / where(total > 0, total, 1.0)
+            out.append((share, means[:, indirect], charges[:, indirect], variances[:, indirect],
+                        residual, total))
+        return out
+
+    zero = jnp.zeros(7, direction.dtype)
+    held_slices = slices_at(fixed.energy)
+    if slopes:
+        # the 6 geometric directions with the emission model's slices held (no tangent
+        # through their tables), then the energy's (through the slices) by one jvp
+        def geometric(z6):
+            out = light(jnp.concatenate([z6, zero[:1]]), held_slices)
+            return out, out
+
+        shape_slopes, values = jax.jacfwd(geometric, has_aux=True)(zero[:6])
+        _, energy_slopes = jax.jvp(
+            lambda e: light(zero.at[6].set(e), slices_at(fixed.energy * jnp.exp(e))),
+            (zero[6],), (jnp.ones_like(zero[6]),))
+        derivatives = jax.tree.map(lambda a, b: jnp.concatenate([a, b[..., None]], axis=-1),
+                                   shape_slopes, energy_slopes)
+    else:
+        values = light(zero, held_slices)
+        derivatives = jax.tree.map(lambda x: jnp.zeros(x.shape + (7,), x.dtype), values)
+    held = []
+    for slope, value in zip(derivatives, values, strict=True):
+        share_slope, mean_slope, _, variance_slope, *_ = slope
+        share, mean, charge, variance, residual, total = value
+        lit = share > 0
+        held.append(HeldIndirect(
+            charge=charge, time_mean=mean, time_variance=variance,
+            charge_slope=where(lit[..., None], share_slope / where(lit, share, 1.0)[..., None],
+                               0.0),
+            mean_slope=where(lit[..., None], mean_slope, 0.0),
+            variance_slope=where(lit[..., None], variance_slope, 0.0),
+            residual_weight=residual, direct_total=total, position=fixed.position,
+            direction=direction, log_energy=jnp.log(fixed.energy)[None],
+            time=jnp.asarray(fixed.time, charge.dtype)))
+    return tuple(held)
+
+
+def _part_light(sensors, params, track, direction, length, model, spectral, key, reference,
+                scintillation, held, slices=None, *, shape, config) -> list:
+    """``_emitted_light`` of each emission part of the track: its Cherenkov light, then,
+    with ``scintillation``, its scintillation light (its own key); ``held``: None, or
+    one ``HeldIndirect`` per part; ``slices``: None, or each part's (slice at the
+    track's energy, slice at the reference's) from ``_slices``."""
+    key = jax.random.key(0) if key is None else key
+    rays_from = jax.tree.map(jax.lax.stop_gradient, track if reference is None else reference)
+    if slices is None:
+        slices = _slices(model, scintillation, track.energy,
+                         None if reference is None else rays_from.energy)
+    factors = [spectral] + ([] if scintillation is None else [scintillation[1]])
+    keys = [key, jax.random.fold_in(key, 1)]
+    return [_emitted_light(
+        sensors, params.replace(quantum_efficiency=params.quantum_efficiency * factor),
+        track, direction, length, light, rays_light, rays_from, part_key,
+        None if held is None else held[k], shape=shape, config=config)
+        for k, ((light, rays_light), factor, part_key)
+        in enumerate(zip(slices, factors, keys[:len(slices)], strict=True))]
+
+
+def _slices(model, scintillation, energy, rays_energy=None) -> list:
+    """Per emission part (the Cherenkov ``model``, then the scintillation model where
+    ``scintillation`` is given), its (slice at ``energy``, slice at ``rays_energy``:
+    the same where None), MeV."""
+    models = [model] + ([] if scintillation is None else [scintillation[0]])
+    pairs = []
+    for light_model in models:
+        light = light_model.at(energy)
+        pairs.append((light, light if rays_energy is None else light_model.at(rays_energy)))
+    return pairs
 
 
 #: Indirect components whose exponential delay would be below this (ns) stay Gaussian.
@@ -140,11 +297,12 @@ SCINTILLATION_COMPONENTS = DIRECT_COMPONENTS // 2 + 1
 
 
 def _emitted_light(sensors, params, track, direction, length, emission, rays_emission,
-                   rays_from, key, *, shape, config):
+                   rays_from, key, held=None, *, shape, config):
     """(charge, mean, variance) (N, C + 2 n_bounces) of the light of one emission slice
     (direct components, then by kind of last vertex and bounce order), the residual
     weight of its rays and the sensors' mean direct arrival time (N,) ns (the time of
-    light from the track's start where there is no direct light)."""
+    light from the track's start where there is no direct light). ``held``: None, or
+    the part's ``HeldIndirect``, used instead of rays (its docstring)."""
     direct = (tabulated_direct_light if isinstance(emission, TabulatedSlice)
               else track_direct_light)
     charge, mean, variance = direct(sensors, params, track.position, direction, track.time,
@@ -153,19 +311,27 @@ def _emitted_light(sensors, params, track, direction, length, emission, rays_emi
     lit = total > LIGHT_FLOOR
     start = jnp.sum(charge * mean, axis=1) / where(lit, total, 1.0)
     start = where(lit, start, mean[:, 0])
-    emitter = TrackEmitter(track.position, direction, track.time, emission, length,
-                           rays_from.position,
-                           rays_from.direction / jnp.linalg.norm(rays_from.direction),
-                           rays_emission, spread=kernel_width(shape))  # held fixed
-    indirect = indirect_light_jit(sensors, params, emitter, start, key, shape=shape,
-                                  config=config)
-    # (N, C + 2 n_bounces): the direct components, then by the kind of the last vertex
-    # (bulk scatter, surface) and its order
-    by_kind = [x.reshape(-1, x.shape[-1]).T for x in
-               (indirect.kind_charge, indirect.kind_time_mean, indirect.kind_time_variance)]
+    if held is None:
+        emitter = TrackEmitter(track.position, direction, track.time, emission, length,
+                               rays_from.position,
+                               rays_from.direction / jnp.linalg.norm(rays_from.direction),
+                               rays_emission, spread=kernel_width(shape))  # held fixed
+        indirect = indirect_light_jit(sensors, params, emitter, start, key, shape=shape,
+                                      config=config)
+        # (N, 2 n_bounces): by the kind of the last vertex (bulk scatter, surface) and
+        # its order
+        by_kind = [x.reshape(-1, x.shape[-1]).T for x in
+                   (indirect.kind_charge, indirect.kind_time_mean,
+                    indirect.kind_time_variance)]
+        residual = indirect.residual_weight
+    else:
+        by_kind = held.move(track, direction, jnp.sum(total))
+        positive = held.direct_total > 0
+        residual = held.residual_weight * where(
+            positive, jnp.sum(total) / where(positive, held.direct_total, 1.0), 1.0)
     charges, means, variances = (jnp.concatenate([a, b], axis=1) for a, b in
                                  zip((charge, mean, variance), by_kind, strict=True))
-    return charges, means, variances, indirect.residual_weight, start
+    return charges, means, variances, residual, start
 
 
 def _decayed(charge, mean, variance, decay_times, decay_weights):
@@ -199,10 +365,10 @@ def _inside_length(shape, position, direction):
 
 @inline_jit(static_argnames=("shape", "config"))
 def track_expected_jit(sensors: Sensors, params, track, model: SplineEmission, spectral,
-                       key=None, reference=None, scintillation=None, *, shape,
+                       key=None, reference=None, scintillation=None, held=None, *, shape,
                        config) -> Prediction:
     """``expected`` of one track on arrays (``track_sensor_light`` then the sensor
     response); ``shape`` and ``config`` static. Returns a ``Prediction``."""
     light = track_sensor_light(sensors, params, track, model, spectral, key, reference,
-                               scintillation, shape=shape, config=config)
+                               scintillation, held, shape=shape, config=config)
     return expected_response(light, params)
