@@ -7,7 +7,10 @@ first-hit time, against one sampled event) with respect to the 7 track parameter
 (``lax.map`` in vmapped chunks of 8), for direct light only (``n_bounces=0``) and for
 direct + indirect light
 (2 bounces, 1,024 rays), each with the default direct-light quadrature and with the
-moment tables (``emission_model="tables"``). Medians of 5 calls after compilation;
+moment tables (``emission_model="tables"``), and, as the reconstruction's fit stages
+evaluate it, with the tables and the indirect light held at the track
+(``held_indirect_function``: its hold timed apart; the batch of 64 traces rays, as
+the case before). Medians of 5 calls after compilation;
 each case runs in its own process (peak memory is per case). Prints a Markdown table
 for BENCHMARKS.md.
 """
@@ -24,7 +27,8 @@ import time
 #: (bounces, emission model) per case: the default quadrature, and the direct light of
 #: the sensors seen from afar read from moment tables (``emission_model="tables"``).
 CASES = {"direct": (0, "spline"), "direct + indirect": (2, "spline"),
-         "direct, tables": (0, "tables"), "direct + indirect, tables": (2, "tables")}
+         "direct, tables": (0, "tables"), "direct + indirect, tables": (2, "tables"),
+         "direct + held indirect, tables": (2, "tables", True)}
 
 
 def _median_seconds(function, repeats: int = 5) -> float:
@@ -40,8 +44,10 @@ def _median_seconds(function, repeats: int = 5) -> float:
     return float(np.median(times))
 
 
-def measure(bounces: int, emission_model: str = "spline") -> dict:
-    """One case in this process: seconds and peak resident memory (MB)."""
+def measure(bounces: int, emission_model: str = "spline", held: bool = False) -> dict:
+    """One case in this process: seconds and peak resident memory (MB). ``held``: the
+    indirect light held at the track (``held_indirect_function``, as the reconstruction's
+    fit stages use it), its hold timed apart."""
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -63,8 +69,18 @@ def measure(bounces: int, emission_model: str = "spline") -> dict:
         return pf.Track("mu-", x[:3], direction, jnp.exp(x[6]), x[3])
 
     start = jnp.array([0.0, 0.0, 0.0, 0.0, 0.5 * np.pi, 0.0, np.log(1000.0)])
-    forward = jax.jit(lambda x: predict(params, track_of(x)).charge)
-    loss = jax.jit(jax.value_and_grad(lambda x: pf.nll(predict(params, track_of(x)), event)))
+    light = None
+    hold_s = None
+    if held:
+        from photonflow.transport.expected import held_indirect_function
+
+        hold = jax.jit(lambda x: held_indirect_function(detector, config=config)(
+            params, track_of(x)))
+        light = hold(start)
+        hold_s = _median_seconds(lambda: hold(start))
+    forward = jax.jit(lambda x, light: predict(params, track_of(x), held=light).charge)
+    loss = jax.jit(jax.value_and_grad(
+        lambda x, light: pf.nll(predict(params, track_of(x), held=light), event)))
     rng = np.random.default_rng(0)
     batch = stack_tracks([
         pf.Track("mu-", rng.uniform(-5, 5, 3), direction / np.linalg.norm(direction),
@@ -76,14 +92,16 @@ def measure(bounces: int, emission_model: str = "spline") -> dict:
     batched = jax.jit(lambda tracks: jax.lax.map(lambda track: predict(params, track).charge,
                                                  tracks, batch_size=8))
     began = time.perf_counter()
-    jax.block_until_ready(forward(start))
+    jax.block_until_ready(forward(start, light))
     compile_forward = time.perf_counter() - began
     began = time.perf_counter()
-    jax.block_until_ready(loss(start))
+    jax.block_until_ready(loss(start, light))
     compile_gradient = time.perf_counter() - began
     result = {
-        "forward_s": _median_seconds(lambda: forward(start)),
-        "value_and_grad_s": _median_seconds(lambda: loss(start)),
+        "forward_s": _median_seconds(lambda: forward(start, light)),
+        "value_and_grad_s": _median_seconds(lambda: loss(start, light)),
+        "hold_s": hold_s,
+        # the held light belongs to one track: the batch predicts with the rays
         "batch64_s": _median_seconds(lambda: batched(batch), repeats=3),
         "compile_forward_s": compile_forward,
         "compile_gradient_s": compile_gradient,
@@ -108,14 +126,15 @@ def main() -> None:
         rows[case] = json.loads(out.strip().splitlines()[-1])
     print(f"Machine: {machine_description()}\n")
     print("| light | forward s | value+grad s (7 track parameters) | ratio | 64 tracks s"
-          " | tracks/s | peak RSS MB | compile fwd / grad s |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+          " | tracks/s | peak RSS MB | compile fwd / grad s | hold s |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for case, row in rows.items():
         print(f"| {case} | {row['forward_s']:.3f} | {row['value_and_grad_s']:.3f}"
               f" | {row['value_and_grad_s'] / row['forward_s']:.1f}"
               f" | {row['batch64_s']:.2f} | {64 / row['batch64_s']:.0f}"
               f" | {row['peak_rss_mb']:.0f}"
-              f" | {row['compile_forward_s']:.0f} / {row['compile_gradient_s']:.0f} |")
+              f" | {row['compile_forward_s']:.0f} / {row['compile_gradient_s']:.0f}"
+              f" | {'' if row.get('hold_s') is None else format(row['hold_s'], '.2f')} |")
 
 
 if __name__ == "__main__":

@@ -16,9 +16,11 @@ import typer
 from ..cli_errors import EXIT_INTERRUPTED, MAX_BOUNCES, check_count, max_workers
 from ..interrupts import terminate_as_interrupt
 from ..reconstruction.fit import RecoSettings
+from ..transport.optics import TransportConfig, check_config
 from .root import console
 
 _DEFAULTS = RecoSettings()
+_TRANSPORT = TransportConfig()
 
 
 def reconstruct(
@@ -38,6 +40,13 @@ def reconstruct(
     bounces: Annotated[int, typer.Option(
         help=f"Scatterings/reflections of the predicted light, 0 (direct light only) to"
              f" {MAX_BOUNCES}.")] = 2,
+    rays: Annotated[int, typer.Option(
+        help="Rays of the predicted indirect light, 1 to 1,000,000 (docs/reconstruction.md:"
+             " its noise against its cost).")] = _TRANSPORT.n_rays,
+    emission_model: Annotated[str, typer.Option(
+        "--emission-model", help="Direct light of the tracks: spline (quadrature),"
+                                 " siren or tables (moment tables: ~1.5x faster fits,"
+                                 " docs/tracks.md).")] = _TRANSPORT.emission_model,
     fits: Annotated[int, typer.Option(
         help="Starts fitted per hypothesis (the likeliest).")] = _DEFAULTS.fits,
     restarts: Annotated[int, typer.Option(
@@ -72,6 +81,7 @@ def reconstruct(
     .OUT.partial beside OUT; the same command with --resume finishes it. --workers and
     --scheduler give the same results as a serial job."""
     from ..cli_errors import check_output_file
+    from ..emission.models import EMISSION_MODELS
     from ..errors import ConfigError
     from ..io import read_events
     from ..io.reco_file import RecoWriter
@@ -81,6 +91,12 @@ def reconstruct(
 
     check_batch_options(particle, method)
     check_count("--bounces", bounces, 0, MAX_BOUNCES)
+    check_count("--rays", rays, 1, 1_000_000)
+    if emission_model not in EMISSION_MODELS:
+        raise ConfigError(f"--emission-model = {emission_model!r}: must be one of"
+                          f" {', '.join(EMISSION_MODELS)}")
+    config = check_config(TransportConfig(n_bounces=bounces, n_rays=rays,
+                                          emission_model=emission_model))
     check_count("--fits", fits, 1, 100)
     check_count("--restarts", restarts, 0, 100)
     check_count("--scan-directions", scan_directions, 0, 1000)
@@ -114,12 +130,13 @@ def reconstruct(
                                 max_iterations=max_iterations,
                                 overdispersion=overdispersion)
         run = {"events": _file_identity(event_file), "particle": particle, "method": method,
-               "params": params_id, "bounces": bounces, "fits": fits, "restarts": restarts,
+               "params": params_id, "bounces": bounces, "rays": rays,
+               "emission_model": emission_model, "fits": fits, "restarts": restarts,
                "scan_directions": scan_directions, "max_iterations": max_iterations,
                "overdispersion": settings.overdispersion}
         writer = RecoWriter(out, detector, run, events_file=str(events.resolve()),
                             mode=mode, resume=resume)
-        _run_job(writer, event_file, detector, detector_params, particle, method, bounces,
+        _run_job(writer, event_file, detector, detector_params, particle, method, config,
                  settings, workers, scheduler, resume)
 
 
@@ -132,13 +149,12 @@ def _file_identity(event_file) -> str:
            f" offsets {digest}"
 
 
-def _run_job(writer, event_file, detector, params, particle, method, bounces, settings,
+def _run_job(writer, event_file, detector, params, particle, method, config, settings,
              workers, scheduler, resume) -> None:
     """Reconstruct the events missing from ``writer`` and write them as they come."""
     from ..io.reco_file import reco_row
     from ..progress import with_progress
     from ..reconstruction.batch import reconstruct_events
-    from ..transport.optics import TransportConfig
 
     n_events = len(event_file)
     results = None
@@ -149,7 +165,7 @@ def _run_job(writer, event_file, detector, params, particle, method, bounces, se
                 done = writer.n_events
                 results = reconstruct_events(
                     detector, params, event_file, particle, method,
-                    config=TransportConfig(n_bounces=bounces), settings=settings,
+                    config=config, settings=settings,
                     first_event=done, workers=workers, scheduler=scheduler)
                 where = f" ({workers} workers)" if workers else (
                     f" ({scheduler})" if scheduler else "")
