@@ -117,8 +117,8 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
         reference = fitted
         if use_time and not moved:
             break
-    # the last stage's held light (to first order about a track within the refresh
-    # thresholds of this one)
+    # the last stage's held light: held at that stage's reference, within the refresh
+    # thresholds of the fitted track unless the refreshes ran out
     data = staged
     hessian, local_frame = _hessian(functions, detector, model, data, reference)
     covariance = _inverse(hessian)

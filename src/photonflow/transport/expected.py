@@ -240,7 +240,9 @@ def _predictor(detector: Detector, dtype, config: TransportConfig, grid):
                 config=config,
             )
         if reference is not None or held is not None:
-            raise ConfigError("reference, held: only a Track source takes them")
+            name = "reference" if reference is not None else "held"
+            raise ConfigError(f"{name}: only a Track source takes it (source:"
+                              f" {type(source).__name__})")
         return expected_jit(
             sensors_used, jax.tree.map(cast, params), jax.tree.map(cast, source), key,
             shape=detector.shape, config=config,
