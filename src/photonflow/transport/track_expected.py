@@ -83,9 +83,10 @@ class HeldIndirect:
     log_energy: jax.Array
     time: jax.Array
 
-    def move(self, track, direction, direct_total) -> list:
-        """[charge, mean, variance] (N, 2 n_bounces) of the held light for ``track``
-        (unit ``direction``; its direct light's total ``direct_total`` p.e.)."""
+    def move(self, track, direction, direct_total) -> tuple:
+        """([charge, mean, variance] (N, 2 n_bounces), residual weight) of the held
+        light for ``track`` (unit ``direction``; its direct light's total
+        ``direct_total`` p.e.)."""
         z = jnp.concatenate([track.position - self.position, direction - self.direction,
                              jnp.log(track.energy)[None] - self.log_energy])
         positive = self.direct_total > 0
@@ -95,7 +96,8 @@ class HeldIndirect:
         exponent = HELD_EXPONENT * jnp.tanh(self.charge_slope @ z / HELD_EXPONENT)
         return [self.charge * scale * jnp.exp(exponent),
                 self.time_mean + (track.time - self.time) + self.mean_slope @ z,
-                jnp.maximum(self.time_variance + self.variance_slope @ z, 0.0)]
+                jnp.maximum(self.time_variance + self.variance_slope @ z, 0.0)], \
+            self.residual_weight * scale
 
 
 #: Bound of the held charge's exponent (``HeldIndirect.move``): a factor of e^2 at most.
@@ -160,7 +162,7 @@ def hold_indirect(sensors: Sensors, params, track, model: SplineEmission, spectr
     fixed = jax.tree.map(jax.lax.stop_gradient, track)
     direction = fixed.direction / jnp.linalg.norm(fixed.direction)
 
-    def slices_at(energy):
+    def slices_at(energy):  # the rays' slices stay at the held track's energy
         return _slices(model, scintillation, energy, fixed.energy)
 
     def light(z, slices):
@@ -179,7 +181,7 @@ def hold_indirect(sensors: Sensors, params, track, model: SplineEmission, spectr
         return out
 
     zero = jnp.zeros(7, direction.dtype)
-    held_slices = slices_at(fixed.energy)
+    held_slices = _slices(model, scintillation, fixed.energy)  # one slice serves both
     if slopes:
         # the 6 geometric directions with the emission model's slices held (no tangent
         # through their tables), then the energy's (through the slices) by one jvp
@@ -325,10 +327,7 @@ def _emitted_light(sensors, params, track, direction, length, emission, rays_emi
                     indirect.kind_time_variance)]
         residual = indirect.residual_weight
     else:
-        by_kind = held.move(track, direction, jnp.sum(total))
-        positive = held.direct_total > 0
-        residual = held.residual_weight * where(
-            positive, jnp.sum(total) / where(positive, held.direct_total, 1.0), 1.0)
+        by_kind, residual = held.move(track, direction, jnp.sum(total))
     charges, means, variances = (jnp.concatenate([a, b], axis=1) for a, b in
                                  zip((charge, mean, variance), by_kind, strict=True))
     return charges, means, variances, residual, start
