@@ -1,8 +1,9 @@
 """Reconstruction benchmark (issue 25): ``python benchmarks/reconstruction.py [--events N]
 [--minuit M] [--out FILE.jsonl] [--fits F] [--emission-model spline|siren|tables]
-[--rays-every-evaluation]``.
+[--rays-every-evaluation] [--particle mu-|e-] [--energy MEV]``.
 
-SK with the default parameters, 1 GeV muons from the generator and the sampled mode
+SK with the default parameters, 1 GeV muons (or ``--particle`` at ``--energy``) from the
+generator and the sampled mode
 (vertices uniform at least 2 m inside the walls, isotropic directions, seed 7), each
 reconstructed by ``reconstruct(..., method="gradient")`` from its hits alone, the first
 ``--minuit`` of them also by MINUIT. One JSON line per fit (written as it ends, so an
@@ -23,8 +24,9 @@ import sys
 import numpy as np
 
 
-def _truths(detector, count: int, seed: int):
-    """``count`` 1 GeV muons, vertices uniform at least 2 m inside SK's walls."""
+def _truths(detector, count: int, seed: int, particle: str = "mu-", energy: float = 1000.0):
+    """``count`` tracks of ``particle`` with kinetic ``energy`` (MeV), vertices uniform at
+    least 2 m inside SK's walls, isotropic directions."""
     import photonflow as pf
 
     rng = np.random.default_rng(seed)
@@ -35,8 +37,8 @@ def _truths(detector, count: int, seed: int):
         if x * x + y * y > radius * radius:
             continue
         direction = rng.normal(size=3)
-        tracks.append(pf.Track("mu-", [x, y, rng.uniform(-half, half)],
-                               direction / np.linalg.norm(direction), 1000.0, 0.0))
+        tracks.append(pf.Track(particle, [x, y, rng.uniform(-half, half)],
+                               direction / np.linalg.norm(direction), energy, 0.0))
     return tracks
 
 
@@ -52,6 +54,8 @@ def main() -> None:
     parser.add_argument("--rays-every-evaluation", action="store_true",
                         help="RecoSettings(hold_indirect=False): trace the indirect light's"
                         " rays at every evaluation instead of holding it per fit stage")
+    parser.add_argument("--particle", default="mu-", help="mu- or e-")
+    parser.add_argument("--energy", type=float, default=1000.0, help="kinetic energy, MeV")
     args = parser.parse_args()
     import photonflow as pf
     from photonflow.benchmarking import machine_description
@@ -65,10 +69,11 @@ def main() -> None:
     out = open(args.out, "a") if args.out else None  # noqa: SIM115
     rows = []
     print(f"Machine: {machine_description()}", flush=True)
-    for k, truth in enumerate(_truths(detector, args.events, 7)):
+    for k, truth in enumerate(_truths(detector, args.events, 7, args.particle,
+                                                   args.energy)):
         event = pf.sample(detector, params, truth, seed=100 + k)
         for method in ("gradient", "minuit")[: 2 if k < args.minuit else 1]:
-            fit = pf.reconstruct(detector, params, event, "mu-", method, config=config,
+            fit = pf.reconstruct(detector, params, event, args.particle, method, config=config,
                                  settings=settings)
             row = {"event": k, "method": method, "seconds": fit.seconds,
                    "evaluations": fit.evaluations, "converged": fit.converged,
@@ -78,7 +83,7 @@ def main() -> None:
                     vertex_m=float(np.linalg.norm(fit.position - truth.position)),
                     direction_deg=math.degrees(math.acos(min(1.0, float(
                         fit.direction @ truth.direction)))),
-                    energy_frac=fit.energy / 1000.0 - 1.0, errors=fit.errors)
+                    energy_frac=fit.energy / args.energy - 1.0, errors=fit.errors)
             rows.append(row)
             line = json.dumps(row)
             print(line, flush=True)

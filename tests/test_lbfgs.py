@@ -126,3 +126,29 @@ def test_a_search_stops_where_no_step_could_lower_the_objective_by_min_decrease(
     step = lbfgs_step(flat, np.zeros(1), 0.0, np.ones(1), min_decrease=0.6)
     # the unit step promises 1 and is tried; a shrink by at most 0.5 promises < 0.6
     assert not step.accepted and step.evaluations == 1
+
+
+def test_an_initial_inverse_hessian_matrix_takes_a_quadratic_to_its_minimum_at_once():
+    """With the exact inverse Hessian of a correlated quadratic as ``initial_inverse``,
+    the first step (length 1) lands on the minimum; without it, the identity's steps do
+    not: the matrix replaces the scaled identity of the two-loop recursion."""
+    rng = np.random.default_rng(3)
+    basis = np.linalg.qr(rng.normal(size=(5, 5)))[0]
+    hessian = basis @ np.diag(np.logspace(0.0, 3.0, 5)) @ basis.T
+    centre = rng.normal(size=5)
+
+    def quadratic(x):
+        return 0.5 * (x - centre) @ hessian @ (x - centre), hessian @ (x - centre)
+
+    value, gradient = quadratic(np.zeros(5))
+    step = lbfgs_step(quadratic, np.zeros(5), value, gradient,
+                      initial_inverse=np.linalg.inv(hessian))
+    assert step.accepted and step.evaluations == 1
+    np.testing.assert_allclose(step.point, centre, atol=1e-9)
+    plain = lbfgs_step(quadratic, np.zeros(5), value, gradient)
+    assert np.linalg.norm(plain.point - centre) > 0.1 * np.linalg.norm(centre)
+    # with pairs, the matrix is still the recursion's start: on a quadratic the pairs are
+    # consistent with it, so the next step is again the exact Newton step
+    later = lbfgs_step(quadratic, plain.point, plain.value, plain.gradient, plain.pairs,
+                       initial_inverse=np.linalg.inv(hessian))
+    np.testing.assert_allclose(later.point, centre, atol=1e-8)

@@ -49,18 +49,23 @@ class LBFGSStep:
 
 
 def lbfgs_direction(gradient: np.ndarray, pairs,
-                    initial_scale: float | None = None) -> np.ndarray:
+                    initial_scale: float | None = None,
+                    initial_inverse: np.ndarray | None = None) -> np.ndarray:
     """The L-BFGS search direction -H g (two-loop recursion over ``pairs``, oldest
-    first; the initial inverse Hessian scaled by the newest pair's s.y / y.y, or without
-    pairs by ``initial_scale``, if given, else by 1 / max(1, |g|)), in the units of the
-    point."""
+    first), in the units of the point. The initial inverse Hessian: the matrix
+    ``initial_inverse`` (n, n), if given (e.g. the inverse of an approximate Fisher
+    information: the pairs then correct a metric that already knows the problem's
+    scales and correlations); else the identity scaled by the newest pair's s.y / y.y,
+    or without pairs by ``initial_scale``, if given, else by 1 / max(1, |g|)."""
     direction = -np.asarray(gradient, np.float64).copy()
     alphas = []
     for s, y in reversed(pairs):
         alpha = s @ direction / (y @ s)
         direction -= alpha * y
         alphas.append(alpha)
-    if pairs:
+    if initial_inverse is not None:
+        direction = np.asarray(initial_inverse, np.float64) @ direction
+    elif pairs:
         direction *= pair_scale(pairs)
     elif initial_scale is not None:
         direction *= initial_scale
@@ -81,7 +86,8 @@ def pair_scale(pairs) -> float:
 
 def lbfgs_step(value_and_grad: Callable, point, value: float, gradient, pairs=(),
                memory: int = 10, max_halvings: int = 30,
-               min_decrease: float = 0.0, initial_scale: float | None = None) -> LBFGSStep:
+               min_decrease: float = 0.0, initial_scale: float | None = None,
+               initial_inverse: np.ndarray | None = None) -> LBFGSStep:
     """One L-BFGS step from ``point`` (whose objective ``value`` and ``gradient`` are
     known): along ``lbfgs_direction`` (the steepest descent if that does not descend),
     the first of the shrinking step lengths 1, ... (at most ``max_halvings`` trials, each
@@ -91,14 +97,15 @@ def lbfgs_step(value_and_grad: Callable, point, value: float, gradient, pairs=()
     -slope x length falls below ``min_decrease`` (units of the objective): at a minimum
     within that, shorter steps only spend evaluations. ``initial_scale``: the inverse
     curvature of the first step without pairs (e.g. ``pair_scale`` of an earlier run on
-    a similar objective); None: a step of length 1.
+    a similar objective); None: a step of length 1. ``initial_inverse``: the initial
+    inverse Hessian as a matrix (``lbfgs_direction``).
 
     ``value_and_grad(x)``: the objective's value (float) and gradient (array) at a flat
     float64 point ``x``; a non-finite value counts as no decrease.
     """
     point = np.asarray(point, np.float64)
     gradient = np.asarray(gradient, np.float64)
-    direction = lbfgs_direction(gradient, pairs, initial_scale)
+    direction = lbfgs_direction(gradient, pairs, initial_scale, initial_inverse)
     slope = float(gradient @ direction)
     if not slope < 0:
         direction, slope = -gradient, -float(gradient @ gradient)

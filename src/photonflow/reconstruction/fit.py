@@ -11,7 +11,8 @@ kept. The likelihood is the full charge + first-hit-time likelihood with dark no
 inside the detector by the map). Two minimisers (``minimisers``):
 
 - ``method="gradient"``: L-BFGS (``photonflow.lbfgs``: an Armijo line search driven from
-  the host over one jitted value-and-gradient program) on exact gradients;
+  the host over one jitted value-and-gradient program) on exact gradients, its initial
+  inverse Hessian the inverse of the sensors' summed score outer products;
 - ``method="minuit"``: MIGRAD (iminuit) with numerical derivatives, errors by HESSE:
   the conventional fit of the same likelihood from the same starts.
 
@@ -128,6 +129,10 @@ class RecoSettings:
             (``held_indirect_function``; a value and gradient then costs the direct
             light's alone, ~3x less in SK); False traces the indirect light's rays at
             every evaluation.
+        score_metric: L-BFGS starts each stage from the inverse of the sum over
+            sensors of the outer products of their likelihood terms' gradients at the
+            stage's start (``_Functions.score_information``) instead of a scaled
+            identity (``docs/reconstruction.md``, "Fit").
     """
 
     fits: int = 2
@@ -143,6 +148,7 @@ class RecoSettings:
     dtype: str | None = None
     overdispersion: float = 0.0
     hold_indirect: bool = True
+    score_metric: bool = True
 
     def __post_init__(self):
         check_overdispersion(self.overdispersion)
@@ -230,11 +236,15 @@ class _Functions:
     free coordinates, ``value(free, frame, reference, data)``, and its value and gradient
     in free or ``LOCAL`` coordinates, ``value_and_grad(x, local, frame, reference, data,
     time_weight)`` (``local``: a bool array, traced: one program for both), each with
-    the indirect light by rays from ``reference`` or held (``data.held``); the held
-    indirect light of a track, ``hold(track, data, slopes=True)``."""
+    the indirect light by rays from ``reference`` or held (``data.held``); the (7, 7)
+    sum over sensors of the outer products of their terms' gradients in free
+    coordinates, ``score_information(free, frame, reference, data, time_weight)``
+    (units of -log L squared per unit of the coordinates squared); the held indirect
+    light of a track, ``hold(track, data, slopes=True)``."""
 
     value: object
     value_and_grad: object
+    score_information: object
     hold: object
     total_charge: object
     window: tuple[float, float]
@@ -287,14 +297,17 @@ def _build_functions(detector, dtype, config: TransportConfig,
     window = tuple(float(x) for x in config.window)
     threshold = config.charge_threshold if config.charge_threshold > 0 else None
 
-    def track_nll(track, reference, data, time_weight=1.0):
+    def sensor_terms(track, reference, data, time_weight=1.0):
         prediction = predict(data.params, track, None, reference, emission=data.emission,
                              arrays=data.sensors, held=data.held)
         weight = jnp.asarray(time_weight, data.charge.dtype)
-        return jnp.sum(dense_sensor_nll(prediction, data.hit, data.charge, data.time,
-                                        data.dark_rate, data.spe_width, window,
-                                        charge_threshold=threshold, time_weight=weight,
-                                        overdispersion=overdispersion))
+        return dense_sensor_nll(prediction, data.hit, data.charge, data.time,
+                                data.dark_rate, data.spe_width, window,
+                                charge_threshold=threshold, time_weight=weight,
+                                overdispersion=overdispersion)
+
+    def track_nll(track, reference, data, time_weight=1.0):
+        return jnp.sum(sensor_terms(track, reference, data, time_weight))
 
     def free_nll(free, frame, reference, data, time_weight=1.0):
         return track_nll(track_from_free(frame, free), reference, data, time_weight)
@@ -304,6 +317,16 @@ def _build_functions(detector, dtype, config: TransportConfig,
         # cheap coordinate maps are the two branches, the likelihood is shared
         track = jax.lax.cond(local, track_from_local, track_from_free, frame, x)
         return track_nll(track, reference, data, time_weight)
+
+    @jax.jit
+    def score_information(x, frame, reference, data, time_weight):
+        # sum over sensors of the outer products of their terms' gradients in free
+        # coordinates (forward mode: 7 tangents through the prediction)
+        def terms(x):
+            return sensor_terms(track_from_free(frame, x), reference, data, time_weight)
+
+        scores = jax.jacfwd(terms)(x)
+        return scores.T @ scores
 
     @jax.jit
     def total_charge(track, data):
@@ -320,6 +343,7 @@ def _build_functions(detector, dtype, config: TransportConfig,
     medium = detector_medium(detector)
     return _Functions(value=jax.jit(free_nll),
                       value_and_grad=jax.jit(jax.value_and_grad(coordinate_nll)),
+                      score_information=score_information,
                       hold=lambda track, data, slopes=True: hold(
                           track, dataclasses.replace(data, held=None), slopes),
                       total_charge=total_charge, window=window,

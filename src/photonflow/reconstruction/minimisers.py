@@ -63,6 +63,7 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
     dtype = data.charge.dtype
     reference, iterations, evaluations, converged = start, 0, 0, False
     scale = None  # the last stage's inverse curvature: the first step's of the next
+    stage_metric = None  # the inverse information of the stage's start (``score_metric``)
     for stage in range(settings.refreshes + 2):
         use_time = stage > 0  # a charge-only stage first: its landscape is smoother
         frame = fit_frame(detector.shape, reference.direction, model.energy_range,
@@ -84,13 +85,24 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
             return _failure("the likelihood is not finite", start, iterations)
         if not np.all(np.isfinite(gradient)):
             return _failure("the gradient is not finite", start, iterations)
+        if settings.score_metric and stage < 2:
+            # a refresh stage (2, ...) keeps the first full stage's metric: its frame
+            # turned by at most a few refresh angles
+            stage_metric = _inverse_metric(np.asarray(functions.score_information(
+                jnp.asarray(free, dtype), frame, fixed, staged, weight), np.float64))
+        metric = stage_metric
         pairs, history, converged, stopped = (), [], False, False
         for _ in range(settings.max_iterations):
             step = lbfgs_step(value_and_grad, free, value, gradient, pairs,
                               min_decrease=MIN_DECREASE * settings.tolerance,
-                              initial_scale=scale)
+                              initial_scale=scale, initial_inverse=metric)
             iterations += 1
             evaluations += step.evaluations
+            if not step.accepted and metric is not None:
+                # the information's metric is not the Hessian's (a misfit), and its
+                # direction found no lower point: once more with the pairs alone
+                metric = None
+                continue
             if not step.accepted and pairs:  # once more along the steepest descent
                 scale, pairs = pair_scale(pairs), ()
                 continue
@@ -120,7 +132,11 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
     # the last stage's held light: held at that stage's reference, within the refresh
     # thresholds of the fitted track unless the refreshes ran out
     data = staged
-    hessian, local_frame = _hessian(functions, detector, model, data, reference)
+    fixed = cast_track(reference, dtype)
+    centre = local_value_and_grad(functions, _local_frame(detector, model, reference, dtype),
+                                  fixed, data)(np.asarray(local_from_track(fixed, dtype)))
+    hessian, local_frame = _hessian(functions, detector, model, data, reference, centre[1])
+    evaluations += 1
     covariance = _inverse(hessian)
     # a point whose Hessian is not positive definite is not a minimum (a saddle, or a
     # ridge the tolerance stopped on): never reported as converged
@@ -129,19 +145,34 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
     if minimum:
         reference, value, remaining, polished = polish(functions, detector, model,
                                                        local_frame, reference, data, hessian,
-                                                       settings.tolerance)
+                                                       settings.tolerance, centre)
         evaluations += polished
         # a line search that found no lower point in the last stage (float32's
         # resolution of the likelihood), at a minimum the Newton step cannot improve
         converged = converged or (stopped and remaining <= settings.tolerance)
     else:
-        fixed = cast_track(reference, dtype)
-        value = float(functions.value(free_from_track(frame, fixed), frame, fixed, data))
+        value = centre[0]
     return RecoResult(position=np.asarray(reference.position), time=float(reference.time),
                       direction=np.asarray(reference.direction),
                       energy=float(reference.energy), covariance=covariance, nll=value,
                       particle=start.particle, converged=converged, iterations=iterations,
                       seconds=0.0, method="gradient", evaluations=evaluations)
+
+
+def _inverse_metric(information: np.ndarray) -> np.ndarray | None:
+    """The inverse of a (7, 7) information matrix, regularised by 1e-6 of its diagonal
+    (a coordinate without information, such as the time in a charge-only stage, gets a
+    unit diagonal: the likelihood does not depend on it); None where it is not finite or
+    not positive definite."""
+    if not np.all(np.isfinite(information)):
+        return None
+    diagonal = np.diag(information)
+    ridge = information + np.diag(np.where(diagonal > 0, 1e-6 * diagonal, 1.0))
+    try:
+        np.linalg.cholesky(ridge)
+    except np.linalg.LinAlgError:
+        return None
+    return np.linalg.inv(ridge)
 
 
 def staged_data(functions, data, track: Track, settings, slopes: bool = True):
@@ -186,13 +217,17 @@ def local_value_and_grad(functions, frame, track: Track, data):
     return value_and_grad
 
 
-def local_hessian(functions, frame, track: Track, data, wall: float = math.inf) -> np.ndarray:
+def local_hessian(functions, frame, track: Track, data, wall: float = math.inf,
+                  centre_gradient: np.ndarray | None = None) -> np.ndarray:
     """(7, 7) Hessian of the negative log-likelihood at ``track`` in ``LOCAL``
     coordinates about ``frame``'s axis (units of the coordinates: m, ns, tangents, log
-    of MeV), symmetrised: central differences of the exact gradient, a pass with
-    ``HESSIAN_STEPS`` and a second with steps of ``HESSIAN_STEP_SIGMA`` of each
-    coordinate's 1 sigma from the first (28 gradients), within 0.1-10x the first steps
-    and, for the vertex, half the distance ``wall`` (m) to the detector's wall.
+    of MeV), symmetrised: differences of the exact gradient, a first pass of forward
+    differences from the gradient at ``track`` (``centre_gradient``, if known) with
+    ``HESSIAN_STEPS``, then central differences with steps of ``HESSIAN_STEP_SIGMA`` of
+    each coordinate's 1 sigma from the first (7 + 14 gradients), within 0.1-10x the
+    first steps and, for the vertex, half the distance ``wall`` (m) to the detector's
+    wall. Where the first pass has a curvature that is not positive, its (not positive
+    definite) Hessian is returned.
 
     Differences of exact gradients over one sigma rather than forward-over-reverse
     second derivatives: they run the fit's own gradient program (a second program took
@@ -200,37 +235,47 @@ def local_hessian(functions, frame, track: Track, data, wall: float = math.inf) 
     5 s in SK, and 12x a value and gradient to run), and they measure the likelihood's
     curvature over its error region, where a track likelihood has curvature structure
     on sub-sigma scales that can make pointwise or 0.1-sigma second derivatives
-    indefinite at a minimum (``docs/reconstruction.md``)."""
+    indefinite at a minimum (``docs/reconstruction.md``). The first pass only sets the
+    second's steps, so its one-sided differences (half the gradients) suffice."""
     centre = np.asarray(local_from_track(track, data.charge.dtype), np.float64)
     value_and_grad = local_value_and_grad(functions, frame, track, data)
 
     def gradient(point):
         return value_and_grad(point)[1]
 
-    def differences(steps):
-        columns = [(gradient(centre + h * e) - gradient(centre - h * e)) / (2.0 * h)
-                   for h, e in zip(steps, np.eye(centre.size), strict=True)]
+    def symmetric(columns):
         hessian = np.stack(columns, axis=1)
         return 0.5 * (hessian + hessian.T)
 
     first = np.asarray(HESSIAN_STEPS, np.float64)
     highest = 10.0 * first
     highest[:3] = np.minimum(highest[:3], max(0.5 * wall, 1e-5))
-    hessian = differences(np.minimum(first, highest))
+    steps = np.minimum(first, highest)
+    at_centre = gradient(centre) if centre_gradient is None else centre_gradient
+    hessian = symmetric([(gradient(centre + h * e) - at_centre) / h
+                         for h, e in zip(steps, np.eye(centre.size), strict=True)])
     curvature = np.diag(hessian)
     if not np.all(np.isfinite(hessian)) or np.any(curvature <= 0):
         return hessian  # not a minimum: the first pass says so
     lowest = np.minimum(0.1 * first, highest)
-    return differences(np.clip(HESSIAN_STEP_SIGMA / np.sqrt(curvature), lowest, highest))
+    steps = np.clip(HESSIAN_STEP_SIGMA / np.sqrt(curvature), lowest, highest)
+    return symmetric([(gradient(centre + h * e) - gradient(centre - h * e)) / (2.0 * h)
+                      for h, e in zip(steps, np.eye(centre.size), strict=True)])
 
 
-def _hessian(functions, detector, model, data, track):
+def _hessian(functions, detector, model, data, track, centre_gradient=None):
     """``local_hessian`` at ``track`` about its own direction, and that ``FitFrame``."""
     dtype = data.charge.dtype
-    frame = fit_frame(detector.shape, track.direction, model.energy_range, track.particle,
-                      0.0, dtype)
+    frame = _local_frame(detector, model, track, dtype)
     wall = float(detector.shape.distance_to_wall(np.asarray(track.position, np.float64)))
-    return local_hessian(functions, frame, cast_track(track, dtype), data, wall), frame
+    return local_hessian(functions, frame, cast_track(track, dtype), data, wall,
+                         centre_gradient), frame
+
+
+def _local_frame(detector, model, track, dtype):
+    """The ``FitFrame`` about ``track``'s own direction (``LOCAL`` coordinates)."""
+    return fit_frame(detector.shape, track.direction, model.energy_range, track.particle,
+                     0.0, dtype)
 
 
 def _inverse(hessian) -> np.ndarray:
@@ -248,12 +293,13 @@ POLISH_STEPS = 3
 
 
 def polish(functions, detector, model, frame, track: Track, data, hessian,
-           tolerance: float) -> tuple[Track, float, float, int]:
+           tolerance: float, centre=None) -> tuple[Track, float, float, int]:
     """Newton steps from a fitted ``track`` on its positive-definite ``hessian``
     (``local_hessian``, ``LOCAL`` coordinates about ``frame``'s axis, the rays fixed by
     ``track``), while a step is predicted to lower the negative log-likelihood by more
     than ``tolerance`` and does lower it, at most ``POLISH_STEPS``; a step that would
-    leave the detector or the emission model's energy range is not taken.
+    leave the detector or the emission model's energy range is not taken. ``centre``:
+    None, or the (value, gradient) at ``track`` in those coordinates, if known.
 
     L-BFGS stops along the flat vertex-energy valley of a track likelihood where its
     last steps lowered it by less than the tolerance, which can leave several tenths of
@@ -270,8 +316,8 @@ def polish(functions, detector, model, frame, track: Track, data, hessian,
     fixed = cast_track(track, dtype)
     value_and_grad = local_value_and_grad(functions, frame, fixed, data)
     point = np.asarray(local_from_track(fixed, dtype), np.float64)
-    value, gradient = value_and_grad(point)
-    evaluations, moved = 1, False
+    value, gradient = value_and_grad(point) if centre is None else centre
+    evaluations, moved = int(centre is None), False
     low, high = (math.log(e) for e in model.energy_range)
 
     def newton(point, gradient):
