@@ -1,6 +1,6 @@
 """Reconstruction benchmark (issue 25): ``python benchmarks/reconstruction.py [--events N]
 [--minuit M] [--out FILE.jsonl] [--fits F] [--emission-model spline|siren|tables]
-[--rays-every-evaluation] [--particle mu-|e-] [--energy MEV]``.
+[--rays-every-evaluation] [--particle mu-|e-] [--energy MEV] [--overdispersion R]``.
 
 SK with the default parameters, 1 GeV muons (or ``--particle`` at ``--energy``) from the
 generator and the sampled mode
@@ -55,6 +55,8 @@ def main() -> None:
                         help="RecoSettings(hold_indirect=False): trace the indirect light's"
                         " rays at every evaluation instead of holding it per fit stage")
     parser.add_argument("--particle", default="mu-", help="mu- or e-")
+    parser.add_argument("--overdispersion", type=float, default=0.0,
+                        help="RecoSettings.overdispersion (r, dimensionless; 0: Poisson)")
     parser.add_argument("--energy", type=float, default=1000.0, help="kinetic energy, MeV")
     args = parser.parse_args()
     import photonflow as pf
@@ -63,7 +65,8 @@ def main() -> None:
     detector = pf.load_detector("SK")
     params = pf.default_params(detector)
     config = pf.TransportConfig(n_rays=1024, emission_model=args.emission_model)
-    settings = pf.RecoSettings(hold_indirect=not args.rays_every_evaluation)
+    settings = pf.RecoSettings(hold_indirect=not args.rays_every_evaluation,
+                               overdispersion=args.overdispersion)
     if args.fits is not None:
         settings = dataclasses.replace(settings, fits=args.fits)
     out = open(args.out, "a") if args.out else None  # noqa: SIM115

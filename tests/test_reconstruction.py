@@ -50,6 +50,18 @@ def gradient_fit(toy, sampled_event):
                        settings=FAST)
 
 
+def fit_pieces(toy, event, dtype=jnp.float32):
+    """The fit's jitted functions, the mu- emission model and the event's data."""
+    from photonflow.reconstruction import fit
+
+    detector, params = toy
+    functions = fit._functions(detector, dtype, CONFIG)
+    model = functions.emission("mu-")
+    data = dataclasses.replace(fit._event_data(detector, params, event, dtype, functions),
+                               emission=model)
+    return functions, model, data
+
+
 def test_coordinates_keep_the_vertex_inside(toy):
     """Any free coordinates, however large, give a vertex inside the detector and an
     energy inside the model's range; a track inside maps to free coordinates and back."""
@@ -125,17 +137,14 @@ def test_the_hessian_from_float32_gradients_is_the_float64_one(toy, sampled_even
     gradient (``local_hessian``, which the covariance inverts) is positive definite and
     gives the 1-sigma errors of the same differences in float64 within 0.5 % and their
     correlations within 0.005: float32 gradients are precise enough for it."""
-    from photonflow.reconstruction import fit, minimisers
+    from photonflow.reconstruction import minimisers
 
-    detector, params = toy
+    detector, _ = toy
     track = pf.Track("mu-", gradient_fit.position, gradient_fit.direction,
                      gradient_fit.energy, gradient_fit.time)
 
     def errors_and_correlations(dtype):
-        functions = fit._functions(detector, dtype, CONFIG)
-        model = functions.emission("mu-")
-        data = dataclasses.replace(
-            fit._event_data(detector, params, sampled_event, dtype, functions), emission=model)
+        functions, model, data = fit_pieces(toy, sampled_event, dtype)
         # the covariance of the fit: NaN unless the Hessian is positive definite
         hessian, _ = minimisers._hessian(functions, detector, model, data, track)
         covariance = minimisers._inverse(hessian)
@@ -252,15 +261,11 @@ def test_newton_polish_reaches_the_minimum_from_a_point_along_its_valley(
     vertex-energy valley where L-BFGS stalls), ``minimisers.polish`` on the Hessian there
     returns to the minimum: -log L within 0.01 of the fit's and the vertex within 0.1
     sigma of it."""
-    from photonflow.reconstruction import fit, minimisers
+    from photonflow.reconstruction import minimisers
     from photonflow.reconstruction.coordinates import local_from_track, track_from_local
 
-    detector, params = toy
-    functions = fit._functions(detector, jnp.float32, CONFIG)
-    model = functions.emission("mu-")
-    data = dataclasses.replace(
-        fit._event_data(detector, params, sampled_event, jnp.float32, functions),
-        emission=model)
+    detector, _ = toy
+    functions, model, data = fit_pieces(toy, sampled_event)
     fitted = pf.Track("mu-", gradient_fit.position, gradient_fit.direction,
                       gradient_fit.energy, gradient_fit.time)
     covariance = gradient_fit.covariance
@@ -289,14 +294,10 @@ def test_the_score_information_is_the_likelihoods_curvature_where_the_model_hold
     information equality E[scores scores^T] = E[Hessian] holds on average over events,
     not in one; measured 0.37-0.92x here). In a charge-only stage the time carries no
     information, and ``_inverse_metric`` gives it a unit diagonal."""
-    from photonflow.reconstruction import fit, minimisers
+    from photonflow.reconstruction import minimisers
 
-    detector, params = toy
-    functions = fit._functions(detector, jnp.float32, CONFIG)
-    model = functions.emission("mu-")
-    data = dataclasses.replace(
-        fit._event_data(detector, params, sampled_event, jnp.float32, functions),
-        emission=model)
+    detector, _ = toy
+    functions, model, data = fit_pieces(toy, sampled_event)
     fitted = minimisers.cast_track(pf.Track("mu-", gradient_fit.position,
                                             gradient_fit.direction, gradient_fit.energy,
                                             gradient_fit.time), jnp.float32)

@@ -10,6 +10,7 @@ test's folder, so that only the first compiles."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -26,7 +27,7 @@ import photonflow as pf
 from photonflow.io import make_event, write_events
 from photonflow.io.reco_file import RecoTable, read_reco
 from photonflow.reconstruction.batch import reconstruct_events
-from photonflow.reconstruction.evaluation import summarize
+from photonflow.reconstruction.evaluation import contained_events, summarize
 
 #: Short fits (the file's content and the job's bookkeeping are under test, not the fits).
 FAST = ["--bounces", "0", "--fits", "1", "--restarts", "0", "--scan-directions", "0",
@@ -238,3 +239,35 @@ def test_summary_quantities_on_a_known_table():
     assert widths["time"] == pytest.approx(1.0, abs=0.15)
     assert widths["log_energy"] == pytest.approx(1.0, abs=0.15)
     assert widths["x"] == 0.0
+
+
+def test_contained_events_are_those_whose_light_ends_inside():
+    """In the toy cylinder (radius 2 m), a 300 MeV muon's light (extent 1.38 m) from
+    1.5 m off the axis ends inside when it heads inwards (3.5 m to the wall) and leaves
+    when it heads outwards (0.5 m); a 300 MeV electron's (2.07 m) leaves from the centre
+    towards the barrel (2 m); a particle without an emission model is unknown; the
+    summary has the contained events' numbers beside all events'."""
+    detector = pf.load_detector("TOY_CYLINDER")
+    n = 4
+    truth = {"particle": np.array(["mu-", "mu-", "e-", "gamma"], dtype=object),
+             "position": np.array([[1.5, 0, 0], [1.5, 0, 0], [0, 0, 0], [0, 0, 0]], float),
+             "direction": np.array([[-1.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]]),
+             "energy": np.full(n, 300.0), "time": np.zeros(n)}
+    reco = {"event": np.arange(n), "particle": truth["particle"],
+            "position": truth["position"] + 0.01, "time": np.zeros(n),
+            "direction": truth["direction"], "energy": np.array([330.0, 600.0, 300, 300]),
+            "covariance": np.tile(np.eye(7), (n, 1, 1)), "errors": np.zeros((n, 6)),
+            "nll": np.zeros(n), "log_likelihood_ratio": np.full(n, np.nan),
+            "converged": np.ones(n, bool), "iterations": np.ones(n, int),
+            "evaluations": np.ones(n, int), "seconds": np.ones(n),
+            "failure": np.array([""] * n, dtype=object)}
+    table = RecoTable(reco=reco, truth=truth, run={"particle": "mu-"}, attrs={},
+                      detector=detector)
+    contained = contained_events(table)
+    np.testing.assert_array_equal(contained[:3], [1.0, 0.0, 0.0])
+    assert np.isnan(contained[3])
+    muons = summarize(table)["particles"]["mu-"]
+    assert muons["n_events"] == 2 and muons["contained"]["n_events"] == 1
+    assert muons["contained"]["energy_68_frac"] == pytest.approx(0.1)
+    assert summarize(dataclasses.replace(table, detector=None))["particles"]["mu-"][
+        "contained"] is None

@@ -40,6 +40,8 @@ def main() -> None:
                         help="rays of the predicted indirect light")
     parser.add_argument("--emission-model", default="tables")
     parser.add_argument("--method", default="gradient", help="gradient or minuit")
+    parser.add_argument("--fits", type=int, default=None,
+                        help="starts fitted per hypothesis (default: the command's)")
     parser.add_argument("--workers", type=int, default=None)
     args = parser.parse_args()
     folder = args.out_dir
@@ -59,6 +61,8 @@ def main() -> None:
         extra = ["--resume"] if partial.exists() else []
         if args.workers:
             extra += ["--workers", str(args.workers)]
+        if args.fits:
+            extra += ["--fits", str(args.fits)]
         _photonflow("reconstruct", str(events), "--out", str(reco), "--particle", "auto",
                     "--method", args.method, "--rays", str(args.rays),
                     "--emission-model", args.emission_model, *extra)

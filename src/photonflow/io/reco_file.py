@@ -29,7 +29,14 @@ import numpy as np
 from .._version import __version__
 from ..errors import EventFileError
 from ..interrupts import interrupts_deferred
-from .hdf5 import COMPRESSION, READ_ERRORS, STRING_DTYPE, now_iso, write_detector
+from .hdf5 import (
+    COMPRESSION,
+    READ_ERRORS,
+    STRING_DTYPE,
+    now_iso,
+    read_detector,
+    write_detector,
+)
 from .partial_files import (
     _damaged,
     _fsync,
@@ -255,12 +262,14 @@ class RecoWriter:
 class RecoTable:
     """A reconstruction file read into memory: ``reco`` and ``truth`` map each field of
     ``RECO_FIELDS`` / ``TRUTH_COPY`` to its array (one row per event); ``run`` holds the
-    job's settings and ``attrs`` the root attributes."""
+    job's settings, ``attrs`` the root attributes and ``detector`` the events'
+    ``Detector`` (None where not given)."""
 
     reco: dict
     truth: dict
     run: dict
     attrs: dict
+    detector: object = None
 
     def __len__(self) -> int:
         return int(self.reco["event"].shape[0])
@@ -294,6 +303,7 @@ def read_reco(path) -> RecoTable:
 
             reco, truth = read(h5["reco"], RECO_FIELDS), read(h5["truth"], TRUTH_COPY)
             attrs = {key: _text_attr(h5, key) for key in h5.attrs}
+            detector = read_detector(h5, path)
     except EventFileError:
         raise
     except READ_ERRORS as error:
@@ -301,4 +311,4 @@ def read_reco(path) -> RecoTable:
     reco = {k: np.asarray(v, dtype=object if v.dtype.kind == "O" else v.dtype)
             for k, v in reco.items()}
     return RecoTable(reco=reco, truth=truth, run=json.loads(attrs.get("run", "{}")),
-                     attrs=attrs)
+                     attrs=attrs, detector=detector)

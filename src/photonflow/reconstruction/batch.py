@@ -10,12 +10,14 @@ on its event and the settings, so the results are the same either way.
 
 from __future__ import annotations
 
+import dataclasses
 import time as clock
 import traceback
 from collections.abc import Iterator, Sequence
 
 from ..cluster import check_count, dask_client, ordered_results
 from ..errors import ConfigError
+from ..threads import host_cores
 from ..transport.optics import TransportConfig
 from .fit import METHODS, PARTICLES, RecoSettings, reconstruct
 from .result import RecoResult
@@ -68,7 +70,8 @@ def reconstruct_events(detector, params, events: Sequence, particle: str = "mu-"
         events: a sequence of ``Event`` (a list, or an open ``EventFile``: read in
             blocks as the job goes).
         first_event: the first event to reconstruct (a resumed job's).
-        workers: reconstruct on a local Dask cluster of this many processes;
+        workers: reconstruct on a local Dask cluster of this many processes (each with
+            ``RecoSettings.threads``, unless set, the host's cores shared among them);
             scheduler: on the existing cluster at this address; neither: here.
         block_events: events per Dask task (default: a few per worker and at most
             ``MAX_BLOCK_EVENTS``).
@@ -87,6 +90,9 @@ def reconstruct_events(detector, params, events: Sequence, particle: str = "mu-"
                                     settings) for i in range(first_event, n_events))
     if workers is not None and scheduler is not None:
         raise ConfigError(f"workers = {workers} and scheduler = {scheduler!r}: choose one")
+    if workers is not None and settings.threads is None:
+        # the local cluster's processes share this host's cores
+        settings = dataclasses.replace(settings, threads=max(1, host_cores() // workers))
     remaining = max(0, n_events - first_event)
     block = block_events or max(1, min(MAX_BLOCK_EVENTS, remaining // (2 * (workers or 1))))
     block = check_count("block_events", block, 1)

@@ -14,6 +14,12 @@ job) is the share of fitted events whose particle family (mu or e) is not the tr
 A pull is an error divided by its reported 1-sigma uncertainty, in the coordinates of
 the covariance (``coordinates.LOCAL``); its width is half the 16-84 % interval (1 for a
 correct uncertainty, insensitive to a few outliers).
+
+Where the file holds its detector, each particle's summary also has ``contained``: the
+same numbers for the events whose true track's light ends inside the detector
+(``contained_events``). A muon that leaves the detector shows only the part of its track
+inside, and its light then bounds its energy from below only: the energy resolution of
+a mixed sample measures how many muons leave.
 """
 
 from __future__ import annotations
@@ -69,6 +75,39 @@ def event_errors(table) -> dict[str, np.ndarray]:
          for t, f in zip(true_family, reco["particle"], strict=True)])
     bad = failures(table)
     return {name: np.where(bad, np.nan, value) for name, value in errors.items()}
+
+
+def contained_events(table) -> np.ndarray:
+    """(n,) 1.0 where the true track's light ends inside the detector (the distance from
+    the true vertex along the true direction to the wall, m, exceeds the light's extent
+    in the shipped spline emission model at the true energy), 0.0 where it leaves, NaN
+    where that is unknown (no detector in the table, a particle without an emission
+    model); 1.0 for every track in an open medium."""
+    from ..emission import emission_model
+    from ..errors import ConfigError
+    from ..transport.tracks import detector_medium
+
+    truth, detector = table.truth, table.detector
+    n = len(table)
+    if detector is None or "position" not in truth:
+        return np.full(n, math.nan)
+    shape = detector.shape
+    if not shape.has_walls:
+        return np.ones(n)
+    position = np.asarray(truth["position"], np.float64)
+    direction = np.asarray(truth["direction"], np.float64)
+    exits = np.asarray(shape.ray_exit(position, direction), np.float64)
+    contained = np.full(n, math.nan)
+    medium = detector_medium(detector)
+    for particle in set(truth["particle"]):
+        try:
+            model = emission_model(particle, medium)
+        except ConfigError:
+            continue
+        for k in np.flatnonzero(truth["particle"] == particle):
+            extent = float(model.at(float(truth["energy"][k])).extent)
+            contained[k] = float(exits[k] > extent)
+    return contained
 
 
 def _angle_errors(fitted, true) -> np.ndarray:
@@ -143,17 +182,21 @@ def energy_bins(energies) -> list[tuple[float, float]]:
 
 def summarize(table) -> dict:
     """The summary of ``photonflow evaluate`` (module docstring) of a ``RecoTable``:
-    ``{"events", "settings", "particles": {particle: {metrics..., "energy_bins":
-    [{"energy_low_mev", "energy_high_mev", metrics...}]}}}``; undefined numbers are
-    None."""
+    ``{"events", "settings", "particles": {particle: {metrics..., "contained":
+    {metrics...} or None, "energy_bins": [{"energy_low_mev", "energy_high_mev",
+    metrics...}]}}}``; undefined numbers are None."""
     errors = event_errors(table)
     failed = failures(table)
     auto = table.run.get("particle") == "auto"
     true_particles = table.truth["particle"]
+    contained = contained_events(table)
     summary = {"events": len(table), "settings": table.run, "particles": {}}
     for particle in sorted(set(true_particles)):
         rows = true_particles == particle
         entry = _metrics(table, errors, failed, rows, auto)
+        inside = rows & (contained == 1.0)
+        entry["contained"] = _metrics(table, errors, failed, inside, auto) \
+            if inside.any() else None
         energies = table.truth["energy"]
         entry["energy_bins"] = []
         bins = energy_bins(energies[rows])
@@ -182,12 +225,13 @@ _COLUMNS = (("n_events", "events", 1, "{:.0f}"), ("n_failed", "failed", 1, "{:.0
 
 
 def format_summary(summary: dict) -> str:
-    """The summary as a plain-text table (68 % quantiles), one row per particle and per
-    energy bin."""
+    """The summary as a plain-text table (68 % quantiles), one row per particle, its
+    contained events and its energy bins."""
     headings = ["particle", "energy MeV", *(c[1] for c in _COLUMNS)]
     rows = []
     for particle, entry in summary["particles"].items():
-        for label, metrics in [("all", entry)] + [
+        contained = [("contained", entry["contained"])] if entry.get("contained") else []
+        for label, metrics in [("all", entry), *contained] + [
                 (f"{b['energy_low_mev']:.0f}" if b["energy_low_mev"] == b["energy_high_mev"]
                  else f"{b['energy_low_mev']:.0f}-{b['energy_high_mev']:.0f}", b)
                 for b in entry["energy_bins"]]:

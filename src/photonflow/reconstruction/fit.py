@@ -48,6 +48,7 @@ from ..generator.track import Track
 from ..geometry.sensor_arrays import sensors_for
 from ..likelihood import check_overdispersion, dark_expectation, dense_sensor_nll, hit_arrays
 from ..numerics import default_float_dtype
+from ..threads import parallel_map
 from ..transport.expected import expected_function, held_indirect_function
 from ..transport.optics import TransportConfig
 from ..transport.tracks import detector_medium
@@ -133,6 +134,9 @@ class RecoSettings:
             sensors of the outer products of their likelihood terms' gradients at the
             stage's start (``_Functions.score_information``) instead of a scaled
             identity (``docs/reconstruction.md``, "Fit").
+        threads: threads for independent likelihood calls (the starts' values, the
+            Hessian's gradients, the two hypotheses of "auto"; ``photonflow.threads``);
+            None: one per core of the host. The results do not depend on it.
     """
 
     fits: int = 2
@@ -149,6 +153,7 @@ class RecoSettings:
     overdispersion: float = 0.0
     hold_indirect: bool = True
     score_metric: bool = True
+    threads: int | None = None
 
     def __post_init__(self):
         check_overdispersion(self.overdispersion)
@@ -198,10 +203,11 @@ def reconstruct(detector, params, event, particle: str = "mu-", method: str = "g
         data = _event_data(detector, params, event, dtype, functions)
         seed = _seed(detector, params, event, dtype) if start is None else start
         hypotheses = ("mu-", "e-") if particle == "auto" else (particle,)
-        results = {}
-        for hypothesis in hypotheses:
-            results[hypothesis] = _fit_particle(functions, detector, params, data, seed,
-                                                hypothesis, method, settings)
+        # the hypotheses' fits are independent: one thread each (``threads``)
+        fits = parallel_map(lambda hypothesis: _fit_particle(
+            functions, detector, params, data, seed, hypothesis, method, settings),
+            hypotheses, settings.threads)
+        results = dict(zip(hypotheses, fits, strict=True))
     fitted = [r for r in results.values() if r.failure is None]
     best = min(fitted, key=lambda r: r.nll) if fitted else results[hypotheses[0]]
     ratio = None
@@ -406,16 +412,18 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
     # rays in the benchmark's events, at a quarter of the cost)
     ranking = staged_data(functions, data, cast_track(tracks[RANKING_START], dtype),
                           settings, slopes=False)
-    starts = []
-    for start in tracks:
+
+    def start_value(start):
         cast = cast_track(start, dtype)
         turned = fit_frame(detector.shape, start.direction, model.energy_range, particle,
                            settings.margin, dtype)
         # ranked by the charge-only likelihood, as the fit's first stage: the seed's time
         # is off for a start far from the point-source vertex
-        value = float(functions.value(free_from_track(turned, cast), turned, cast, ranking,
-                                      jnp.zeros((), dtype)))
-        starts.append((value, start))
+        return float(functions.value(free_from_track(turned, cast), turned, cast, ranking,
+                                     jnp.zeros((), dtype)))
+
+    starts = list(zip(parallel_map(start_value, tracks, settings.threads), tracks,
+                      strict=True))
     starts.sort(key=lambda item: item[0] if math.isfinite(item[0]) else math.inf)
     fits = []
     for rank, (_, start) in enumerate(starts):

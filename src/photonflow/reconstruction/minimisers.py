@@ -21,6 +21,7 @@ import numpy as np
 
 from ..generator.track import Track
 from ..lbfgs import lbfgs_step, pair_scale
+from ..threads import parallel_map
 from ..transport.optics import orthonormal_basis
 from .coordinates import (
     fit_frame,
@@ -135,7 +136,8 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
     fixed = cast_track(reference, dtype)
     centre = local_value_and_grad(functions, _local_frame(detector, model, reference, dtype),
                                   fixed, data)(np.asarray(local_from_track(fixed, dtype)))
-    hessian, local_frame = _hessian(functions, detector, model, data, reference, centre[1])
+    hessian, local_frame = _hessian(functions, detector, model, data, reference, centre[1],
+                                    settings.threads)
     evaluations += 1
     covariance = _inverse(hessian)
     # a point whose Hessian is not positive definite is not a minimum (a saddle, or a
@@ -218,7 +220,8 @@ def local_value_and_grad(functions, frame, track: Track, data):
 
 
 def local_hessian(functions, frame, track: Track, data, wall: float = math.inf,
-                  centre_gradient: np.ndarray | None = None) -> np.ndarray:
+                  centre_gradient: np.ndarray | None = None,
+                  threads: int | None = None) -> np.ndarray:
     """(7, 7) Hessian of the negative log-likelihood at ``track`` in ``LOCAL``
     coordinates about ``frame``'s axis (units of the coordinates: m, ns, tangents, log
     of MeV), symmetrised: differences of the exact gradient, a first pass of forward
@@ -227,7 +230,8 @@ def local_hessian(functions, frame, track: Track, data, wall: float = math.inf,
     each coordinate's 1 sigma from the first (7 + 14 gradients), within 0.1-10x the
     first steps and, for the vertex, half the distance ``wall`` (m) to the detector's
     wall. Where the first pass has a curvature that is not positive, its (not positive
-    definite) Hessian is returned.
+    definite) Hessian is returned. The gradients of a pass run on ``threads`` threads
+    (``photonflow.threads.parallel_map``).
 
     Differences of exact gradients over one sigma rather than forward-over-reverse
     second derivatives: they run the fit's own gradient program (a second program took
@@ -240,36 +244,41 @@ def local_hessian(functions, frame, track: Track, data, wall: float = math.inf,
     centre = np.asarray(local_from_track(track, data.charge.dtype), np.float64)
     value_and_grad = local_value_and_grad(functions, frame, track, data)
 
-    def gradient(point):
-        return value_and_grad(point)[1]
+    def gradients(points):
+        return parallel_map(lambda point: value_and_grad(point)[1], points, threads)
 
     def symmetric(columns):
         hessian = np.stack(columns, axis=1)
         return 0.5 * (hessian + hessian.T)
 
+    axes = np.eye(centre.size)
+
     first = np.asarray(HESSIAN_STEPS, np.float64)
     highest = 10.0 * first
     highest[:3] = np.minimum(highest[:3], max(0.5 * wall, 1e-5))
     steps = np.minimum(first, highest)
-    at_centre = gradient(centre) if centre_gradient is None else centre_gradient
-    hessian = symmetric([(gradient(centre + h * e) - at_centre) / h
-                         for h, e in zip(steps, np.eye(centre.size), strict=True)])
+    at_centre = gradients([centre])[0] if centre_gradient is None else centre_gradient
+    ahead = gradients([centre + h * e for h, e in zip(steps, axes, strict=True)])
+    hessian = symmetric([(g - at_centre) / h for g, h in zip(ahead, steps, strict=True)])
     curvature = np.diag(hessian)
     if not np.all(np.isfinite(hessian)) or np.any(curvature <= 0):
         return hessian  # not a minimum: the first pass says so
     lowest = np.minimum(0.1 * first, highest)
     steps = np.clip(HESSIAN_STEP_SIGMA / np.sqrt(curvature), lowest, highest)
-    return symmetric([(gradient(centre + h * e) - gradient(centre - h * e)) / (2.0 * h)
-                      for h, e in zip(steps, np.eye(centre.size), strict=True)])
+    ends = gradients([centre + sign * h * e for h, e in zip(steps, axes, strict=True)
+                      for sign in (1.0, -1.0)])
+    return symmetric([(ends[2 * k] - ends[2 * k + 1]) / (2.0 * h)
+                      for k, h in enumerate(steps)])
 
 
-def _hessian(functions, detector, model, data, track, centre_gradient=None):
+def _hessian(functions, detector, model, data, track, centre_gradient=None,
+             threads: int | None = None):
     """``local_hessian`` at ``track`` about its own direction, and that ``FitFrame``."""
     dtype = data.charge.dtype
     frame = _local_frame(detector, model, track, dtype)
     wall = float(detector.shape.distance_to_wall(np.asarray(track.position, np.float64)))
     return local_hessian(functions, frame, cast_track(track, dtype), data, wall,
-                         centre_gradient), frame
+                         centre_gradient, threads), frame
 
 
 def _local_frame(detector, model, track, dtype):

@@ -1,0 +1,47 @@
+"""Independent calls of compiled programs on the host's cores.
+
+JAX releases Python's GIL while a compiled program runs, and on the CPU XLA runs
+photonflow's programs (large element-wise graphs) on about one core each; independent
+calls, such as the likelihood at a fit's starts or the gradients of a Hessian's
+differences, then finish sooner from several threads. The results do not depend on the
+number of threads: every call computes what it would alone, and results come back in
+the order of the items.
+
+Written here rather than taken from ``concurrent.futures`` alone because JAX's
+precision setting (``jax.enable_x64``) is local to a thread: a worker thread runs each
+call under the caller's setting, so that a float64 fit stays float64.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
+
+import jax
+
+
+def host_cores() -> int:
+    """Cores this process may run on (at least 1)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+def parallel_map(function: Callable, items: Iterable, threads: int | None = None) -> list:
+    """``[function(item) for item in items]``, the calls spread over ``threads`` threads
+    (None: ``host_cores()``; 1: in this thread), each under this thread's
+    ``jax_enable_x64``; an exception of any call is raised here."""
+    items = list(items)
+    threads = host_cores() if threads is None else int(threads)
+    threads = max(1, min(threads, len(items)))
+    if threads == 1:
+        return [function(item) for item in items]
+    x64 = bool(jax.config.jax_enable_x64)
+
+    def call(item):
+        with jax.enable_x64(x64):
+            return function(item)
+
+    with ThreadPoolExecutor(threads) as pool:
+        return list(pool.map(call, items))
