@@ -147,6 +147,7 @@ def test_an_initial_inverse_hessian_matrix_takes_a_quadratic_to_its_minimum_at_o
     np.testing.assert_allclose(step.point, centre, atol=1e-9)
     plain = lbfgs_step(quadratic, np.zeros(5), value, gradient)
     assert np.linalg.norm(plain.point - centre) > 0.1 * np.linalg.norm(centre)
+    assert plain.pairs
     # with pairs, the matrix is still the recursion's start: on a quadratic the pairs are
     # consistent with it, so the next step is again the exact Newton step
     later = lbfgs_step(quadratic, plain.point, plain.value, plain.gradient, plain.pairs,

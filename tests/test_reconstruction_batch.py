@@ -245,17 +245,21 @@ def test_contained_events_are_those_whose_light_ends_inside():
     """In the toy cylinder (radius 2 m), a 300 MeV muon's light (extent 1.38 m) from
     1.5 m off the axis ends inside when it heads inwards (3.5 m to the wall) and leaves
     when it heads outwards (0.5 m); a 300 MeV electron's (2.07 m) leaves from the centre
-    towards the barrel (2 m); a particle without an emission model is unknown; the
-    summary has the contained events' numbers beside all events'."""
+    towards the barrel (2 m); a particle without an emission model, a vertex outside
+    the detector and an energy above the model's range are unknown; the summary has the
+    contained events' numbers beside all events'."""
     detector = pf.load_detector("TOY_CYLINDER")
-    n = 4
-    truth = {"particle": np.array(["mu-", "mu-", "e-", "gamma"], dtype=object),
-             "position": np.array([[1.5, 0, 0], [1.5, 0, 0], [0, 0, 0], [0, 0, 0]], float),
-             "direction": np.array([[-1.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]]),
-             "energy": np.full(n, 300.0), "time": np.zeros(n)}
+    n = 6
+    truth = {"particle": np.array(["mu-", "mu-", "e-", "gamma", "mu-", "mu-"], dtype=object),
+             "position": np.array([[1.5, 0, 0], [1.5, 0, 0], [0, 0, 0], [0, 0, 0],
+                                   [3.0, 0, 0], [0, 0, 0]], float),
+             "direction": np.array([[-1.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0],
+                                    [-1.0, 0, 0], [0, 0, 1.0]]),
+             "energy": np.array([300.0, 300, 300, 300, 300, 1e6]), "time": np.zeros(n)}
     reco = {"event": np.arange(n), "particle": truth["particle"],
             "position": truth["position"] + 0.01, "time": np.zeros(n),
-            "direction": truth["direction"], "energy": np.array([330.0, 600.0, 300, 300]),
+            "direction": truth["direction"],
+            "energy": np.array([330.0, 600.0, 300, 300, 300, 1e6]),
             "covariance": np.tile(np.eye(7), (n, 1, 1)), "errors": np.zeros((n, 6)),
             "nll": np.zeros(n), "log_likelihood_ratio": np.full(n, np.nan),
             "converged": np.ones(n, bool), "iterations": np.ones(n, int),
@@ -265,9 +269,9 @@ def test_contained_events_are_those_whose_light_ends_inside():
                       detector=detector)
     contained = contained_events(table)
     np.testing.assert_array_equal(contained[:3], [1.0, 0.0, 0.0])
-    assert np.isnan(contained[3])
+    assert np.all(np.isnan(contained[3:]))
     muons = summarize(table)["particles"]["mu-"]
-    assert muons["n_events"] == 2 and muons["contained"]["n_events"] == 1
+    assert muons["n_events"] == 4 and muons["contained"]["n_events"] == 1
     assert muons["contained"]["energy_68_frac"] == pytest.approx(0.1)
     assert summarize(dataclasses.replace(table, detector=None))["particles"]["mu-"][
         "contained"] is None

@@ -1,11 +1,14 @@
 """Independent calls of compiled programs on the host's cores.
 
-JAX releases Python's GIL while a compiled program runs, and on the CPU XLA runs
-photonflow's programs (large element-wise graphs) on about one core each; independent
-calls, such as the likelihood at a fit's starts or the gradients of a Hessian's
-differences, then finish sooner from several threads. The results do not depend on the
-number of threads: every call computes what it would alone, and results come back in
-the order of the items.
+JAX releases Python's GIL while a compiled program runs, so independent calls, such as
+the likelihood at a fit's starts or the gradients of a Hessian's differences, overlap
+their host-side work (argument handling, dispatch, results) with each other's programs
+from several threads. The gain is modest on the CPU: XLA's CPU client runs the programs
+of one device mostly one after the other (an SK value and gradient: 98 ms per call
+from two threads against 112 ms from one, ``BENCHMARKS.md``). The results do not
+depend on the number of threads: every call computes what it would alone, and results
+come back in the order of the items. Keep the calls short: an interrupt waits for the
+calls in flight.
 
 Written here rather than taken from ``concurrent.futures`` alone because JAX's
 precision setting (``jax.enable_x64``) is local to a thread: a worker thread runs each
@@ -31,7 +34,8 @@ def host_cores() -> int:
 def parallel_map(function: Callable, items: Iterable, threads: int | None = None) -> list:
     """``[function(item) for item in items]``, the calls spread over ``threads`` threads
     (None: ``host_cores()``; 1: in this thread), each under this thread's
-    ``jax_enable_x64``; an exception of any call is raised here."""
+    ``jax_enable_x64`` (the only thread-local JAX setting photonflow changes); an
+    exception of any call is raised here."""
     items = list(items)
     threads = host_cores() if threads is None else int(threads)
     threads = max(1, min(threads, len(items)))

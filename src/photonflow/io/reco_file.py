@@ -263,7 +263,7 @@ class RecoTable:
     """A reconstruction file read into memory: ``reco`` and ``truth`` map each field of
     ``RECO_FIELDS`` / ``TRUTH_COPY`` to its array (one row per event); ``run`` holds the
     job's settings, ``attrs`` the root attributes and ``detector`` the events'
-    ``Detector`` (None where not given)."""
+    ``Detector`` (None where the file's cannot be read)."""
 
     reco: dict
     truth: dict
@@ -303,7 +303,10 @@ def read_reco(path) -> RecoTable:
 
             reco, truth = read(h5["reco"], RECO_FIELDS), read(h5["truth"], TRUTH_COPY)
             attrs = {key: _text_attr(h5, key) for key in h5.attrs}
-            detector = read_detector(h5, path)
+            try:
+                detector = read_detector(h5, path)
+            except EventFileError:  # the results stay readable without it
+                detector = None
     except EventFileError:
         raise
     except READ_ERRORS as error:

@@ -81,32 +81,41 @@ def contained_events(table) -> np.ndarray:
     """(n,) 1.0 where the true track's light ends inside the detector (the distance from
     the true vertex along the true direction to the wall, m, exceeds the light's extent
     in the shipped spline emission model at the true energy), 0.0 where it leaves, NaN
-    where that is unknown (no detector in the table, a particle without an emission
-    model); 1.0 for every track in an open medium."""
+    where that is unknown: no detector in the table, a particle without an emission
+    model, a true energy outside the model's range (MeV), a true vertex outside the
+    detector. In an open medium, 1.0 wherever it is known."""
     from ..emission import emission_model
     from ..errors import ConfigError
     from ..transport.tracks import detector_medium
 
     truth, detector = table.truth, table.detector
     n = len(table)
+    contained = np.full(n, math.nan)
     if detector is None or "position" not in truth:
-        return np.full(n, math.nan)
+        return contained
     shape = detector.shape
-    if not shape.has_walls:
-        return np.ones(n)
     position = np.asarray(truth["position"], np.float64)
     direction = np.asarray(truth["direction"], np.float64)
-    exits = np.asarray(shape.ray_exit(position, direction), np.float64)
-    contained = np.full(n, math.nan)
+    if shape.has_walls:
+        inside = np.asarray(shape.distance_to_wall(position), np.float64) > 0.0
+        exits = np.where(inside, np.asarray(shape.ray_exit(position, direction),
+                                            np.float64), math.nan)
+    else:
+        exits = np.full(n, math.inf)
+    energies = np.asarray(truth["energy"], np.float64)
     medium = detector_medium(detector)
     for particle in set(truth["particle"]):
         try:
-            model = emission_model(particle, medium)
+            model = emission_model(str(particle), medium)
         except ConfigError:
             continue
-        for k in np.flatnonzero(truth["particle"] == particle):
-            extent = float(model.at(float(truth["energy"][k])).extent)
-            contained[k] = float(exits[k] > extent)
+        low, high = model.energy_range
+        rows = np.flatnonzero((truth["particle"] == particle) & (energies >= low)
+                              & (energies <= high) & ~np.isnan(exits))
+        for energy in np.unique(energies[rows]):
+            extent = float(model.at(float(energy)).extent)
+            same = rows[energies[rows] == energy]
+            contained[same] = (exits[same] > extent).astype(np.float64)
     return contained
 
 

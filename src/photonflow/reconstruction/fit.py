@@ -132,11 +132,14 @@ class RecoSettings:
             every evaluation.
         score_metric: L-BFGS starts each stage from the inverse of the sum over
             sensors of the outer products of their likelihood terms' gradients at the
-            stage's start (``_Functions.score_information``) instead of a scaled
-            identity (``docs/reconstruction.md``, "Fit").
+            start of the charge-only and the first full stage
+            (``_Functions.score_information``; refresh stages reuse the latter's)
+            instead of a scaled identity, and goes on without it once a step along it
+            finds no lower point (``docs/reconstruction.md``, "Fit").
         threads: threads for independent likelihood calls (the starts' values, the
-            Hessian's gradients, the two hypotheses of "auto"; ``photonflow.threads``);
-            None: one per core of the host. The results do not depend on it.
+            Hessian's gradients; ``photonflow.threads``); None: one per core of the
+            host (with ``--scheduler``, of each worker's host). The results do not
+            depend on it.
     """
 
     fits: int = 2
@@ -203,11 +206,10 @@ def reconstruct(detector, params, event, particle: str = "mu-", method: str = "g
         data = _event_data(detector, params, event, dtype, functions)
         seed = _seed(detector, params, event, dtype) if start is None else start
         hypotheses = ("mu-", "e-") if particle == "auto" else (particle,)
-        # the hypotheses' fits are independent: one thread each (``threads``)
-        fits = parallel_map(lambda hypothesis: _fit_particle(
-            functions, detector, params, data, seed, hypothesis, method, settings),
-            hypotheses, settings.threads)
-        results = dict(zip(hypotheses, fits, strict=True))
+        results = {}
+        for hypothesis in hypotheses:
+            results[hypothesis] = _fit_particle(functions, detector, params, data, seed,
+                                                hypothesis, method, settings)
     fitted = [r for r in results.values() if r.failure is None]
     best = min(fitted, key=lambda r: r.nll) if fitted else results[hypotheses[0]]
     ratio = None
