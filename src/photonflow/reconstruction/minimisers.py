@@ -89,8 +89,8 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
         if settings.score_metric and stage < 2:
             stage_metric = _inverse_metric(np.asarray(functions.score_information(
                 jnp.asarray(free, dtype), frame, fixed, staged, weight), np.float64))
-        # a refresh stage (2, ...) reuses the first full stage's metric (0.4 s saved in
-        # SK; 17.4 s against 16.5 s per muon): its coordinates differ by the move of the
+        # a refresh stage (2, ...) reuses the first full stage's metric (one score
+        # information less, ~0.4 s in SK): its coordinates differ by the move of the
         # frame's axis, and where that spoils the metric the stage goes on without it
         metric = stage_metric
         pairs, history, converged, stopped = (), [], False, False
