@@ -146,7 +146,7 @@ def test_the_hessian_from_float32_gradients_is_the_float64_one(toy, sampled_even
     def errors_and_correlations(dtype):
         functions, model, data = fit_pieces(toy, sampled_event, dtype)
         # the covariance of the fit: NaN unless the Hessian is positive definite
-        hessian, _ = minimisers._hessian(functions, detector, model, data, track)
+        hessian, *_ = minimisers._hessian(functions, detector, model, data, track)
         covariance = minimisers._inverse(hessian)
         assert np.all(np.isfinite(covariance))
         errors = np.sqrt(np.diag(covariance))
@@ -275,7 +275,8 @@ def test_newton_polish_reaches_the_minimum_from_a_point_along_its_valley(
                       jnp.float32)
     start = minimisers._concrete(track_from_local(
         frame, local_from_track(fitted, jnp.float32) + jnp.asarray(offset, jnp.float32)))
-    hessian, local_frame = minimisers._hessian(functions, detector, model, data, start)
+    hessian, local_frame, _ = minimisers._hessian(functions, detector, model, data,
+                                                     start)
     polished, value, remaining, evaluations = minimisers.polish(
         functions, detector, model, local_frame, start, data, hessian, 0.01)
     assert 2 <= evaluations <= 1 + minimisers.POLISH_STEPS

@@ -135,11 +135,8 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
     # the last stage's held light: held at that stage's reference, within the refresh
     # thresholds of the fitted track unless the refreshes ran out
     data = staged
-    fixed = cast_track(reference, dtype)
-    centre = local_value_and_grad(functions, _local_frame(detector, model, reference, dtype),
-                                  fixed, data)(np.asarray(local_from_track(fixed, dtype)))
-    hessian, local_frame = _hessian(functions, detector, model, data, reference, centre[1],
-                                    settings.threads)
+    hessian, local_frame, centre = _hessian(functions, detector, model, data, reference,
+                                            settings.threads)
     evaluations += 1
     covariance = _inverse(hessian)
     # a point whose Hessian is not positive definite is not a minimum (a saddle, or a
@@ -274,20 +271,19 @@ def local_hessian(functions, frame, track: Track, data, wall: float = math.inf,
                       for k, h in enumerate(steps)])
 
 
-def _hessian(functions, detector, model, data, track, centre_gradient=None,
-             threads: int | None = None):
-    """``local_hessian`` at ``track`` about its own direction, and that ``FitFrame``."""
+def _hessian(functions, detector, model, data, track, threads: int | None = None):
+    """``local_hessian`` at ``track`` about its own direction, that ``FitFrame``, and
+    the (value, gradient) there (``local_value_and_grad``; the Hessian's first pass and
+    ``polish`` start from it)."""
     dtype = data.charge.dtype
-    frame = _local_frame(detector, model, track, dtype)
+    frame = fit_frame(detector.shape, track.direction, model.energy_range, track.particle,
+                      0.0, dtype)
+    fixed = cast_track(track, dtype)
+    centre = local_value_and_grad(functions, frame, fixed, data)(
+        np.asarray(local_from_track(fixed, dtype), np.float64))
     wall = float(detector.shape.distance_to_wall(np.asarray(track.position, np.float64)))
-    return local_hessian(functions, frame, cast_track(track, dtype), data, wall,
-                         centre_gradient, threads), frame
-
-
-def _local_frame(detector, model, track, dtype):
-    """The ``FitFrame`` about ``track``'s own direction (``LOCAL`` coordinates)."""
-    return fit_frame(detector.shape, track.direction, model.energy_range, track.particle,
-                     0.0, dtype)
+    return local_hessian(functions, frame, fixed, data, wall, centre[1], threads), frame, \
+        centre
 
 
 def _inverse(hessian) -> np.ndarray:
