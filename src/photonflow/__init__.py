@@ -7,9 +7,11 @@ Units everywhere: metres, nanoseconds, MeV, radians; wavelength in nm.
 from typing import TYPE_CHECKING
 
 from . import _startup as _startup  # first: the command exits 130 on Ctrl-C while JAX loads
+from .host_allocator import configure_host_allocator
 from .xla_settings import configure_xla_flags
 
 configure_xla_flags()  # opt-in, before any JAX backend starts (photonflow.xla_settings)
+configure_host_allocator()  # large buffers reused between calls (photonflow.host_allocator)
 
 # ruff: noqa: E402 (the flags above must be set before the rest is imported)
 from ._version import __version__
