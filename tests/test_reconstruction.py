@@ -55,9 +55,9 @@ def fit_pieces(toy, event, dtype=jnp.float32):
     from photonflow.reconstruction import fit
 
     detector, params = toy
-    functions = fit._functions(detector, dtype, CONFIG)
+    functions = fit.likelihood_functions(detector, dtype, CONFIG)
     model = functions.emission("mu-")
-    data = dataclasses.replace(fit._event_data(detector, params, event, dtype, functions),
+    data = dataclasses.replace(fit.event_data(detector, params, event, dtype, functions),
                                emission=model)
     return functions, model, data
 
@@ -98,6 +98,26 @@ def test_a_sampled_event_is_reconstructed_from_its_hits(toy, sampled_event, grad
     assert angle < 3 * math.sqrt(2) * errors["direction_deg"]
     assert abs(math.log(fit.energy / 300.0)) < 3 * errors["energy_frac"]
     assert fit.covariance.shape == (7, 7) and np.all(np.isfinite(fit.covariance))
+
+
+def test_the_cramer_rao_covariance_is_the_fits_own_at_its_minimum(toy, sampled_event,
+                                                                 gradient_fit):
+    """``cramer_rao_covariance`` at the fitted track gives the fit's covariance (the same
+    Hessian, at the point the polish may have moved by a fraction of a sigma), and at
+    the truth one of the same size in every quantity (a 300 MeV muon's likelihood curves
+    alike within its errors)."""
+    from photonflow.reconstruction import covariance_errors, cramer_rao_covariance
+
+    detector, params = toy
+    fit = gradient_fit
+    fitted = pf.Track("mu-", fit.position, fit.direction, fit.energy, fit.time)
+    at_fit = covariance_errors(cramer_rao_covariance(detector, params, sampled_event, fitted,
+                                                     config=CONFIG))
+    at_truth = covariance_errors(cramer_rao_covariance(detector, params, sampled_event,
+                                                       TRUTH, config=CONFIG))
+    for name, error in fit.errors.items():
+        assert at_fit[name] == pytest.approx(error, rel=0.05), name
+        assert 0.5 < at_truth[name] / error < 2.0, name
 
 
 def test_minuit_finds_the_same_minimum(toy, sampled_event, gradient_fit):
@@ -146,8 +166,8 @@ def test_the_hessian_from_float32_gradients_is_the_float64_one(toy, sampled_even
     def errors_and_correlations(dtype):
         functions, model, data = fit_pieces(toy, sampled_event, dtype)
         # the covariance of the fit: NaN unless the Hessian is positive definite
-        hessian, *_ = minimisers._hessian(functions, detector, model, data, track)
-        covariance = minimisers._inverse(hessian)
+        hessian, *_ = minimisers.hessian_at(functions, detector, model, data, track)
+        covariance = minimisers.covariance_from_hessian(hessian)
         assert np.all(np.isfinite(covariance))
         errors = np.sqrt(np.diag(covariance))
         return errors, covariance / np.outer(errors, errors)
@@ -240,8 +260,8 @@ def test_the_fit_programs_take_the_large_arrays_as_arguments(toy, sampled_event)
     from photonflow.reconstruction import fit
 
     detector, params = toy
-    functions = fit._functions(detector, jnp.float32, CONFIG)
-    data = fit._event_data(detector, params, sampled_event, jnp.float32, functions)
+    functions = fit.likelihood_functions(detector, jnp.float32, CONFIG)
+    data = fit.event_data(detector, params, sampled_event, jnp.float32, functions)
     data = dataclasses.replace(data, emission=functions.emission("mu-"))
     frame = fit_frame(detector.shape, TRUTH.direction, (50.0, 5000.0), "mu-", 0.0,
                       jnp.float32)
@@ -275,7 +295,7 @@ def test_newton_polish_reaches_the_minimum_from_a_point_along_its_valley(
                       jnp.float32)
     start = minimisers._concrete(track_from_local(
         frame, local_from_track(fitted, jnp.float32) + jnp.asarray(offset, jnp.float32)))
-    hessian, local_frame, _ = minimisers._hessian(functions, detector, model, data,
+    hessian, local_frame, _ = minimisers.hessian_at(functions, detector, model, data,
                                                      start)
     polished, value, remaining, evaluations = minimisers.polish(
         functions, detector, model, local_frame, start, data, hessian, 0.01)
@@ -345,7 +365,8 @@ def test_a_fit_without_a_positive_definite_hessian_is_not_converged(toy, sampled
     good = reconstruct(detector, params, sampled_event, "mu-", config=CONFIG, settings=short,
                        start=TRUTH)
     assert good.converged and np.all(np.isfinite(good.covariance))
-    monkeypatch.setattr(minimisers, "_inverse", lambda hessian: np.full((7, 7), np.nan))
+    monkeypatch.setattr(minimisers, "covariance_from_hessian",
+                        lambda hessian: np.full((7, 7), np.nan))
     saddle = reconstruct(detector, params, sampled_event, "mu-", config=CONFIG,
                          settings=short, start=TRUTH)
     assert saddle.failure is None and not saddle.converged
@@ -398,8 +419,8 @@ def test_the_fit_is_seeded_with_the_configured_emission_model(toy, sampled_event
 
     detector, params = toy
     config = dataclasses.replace(CONFIG, emission_model="siren")
-    functions = fit._functions(detector, jnp.float32, config)
-    data = fit._event_data(detector, params, sampled_event, jnp.float32, functions)
+    functions = fit.likelihood_functions(detector, jnp.float32, config)
+    data = fit.event_data(detector, params, sampled_event, jnp.float32, functions)
     seen = {}
 
     class Captured(Exception):
@@ -427,8 +448,8 @@ def test_the_energy_seed_of_a_track_that_leaves_the_detector(toy, energy, bound)
     detector, params = toy
     truth = TRUTH.replace(energy=energy)
     event = noise_free_event(detector, params, truth)
-    functions = fit._functions(detector, jnp.float32, CONFIG)
-    data = fit._event_data(detector, params, event, jnp.float32, functions)
+    functions = fit.likelihood_functions(detector, jnp.float32, CONFIG)
+    data = fit.event_data(detector, params, event, jnp.float32, functions)
     data = dataclasses.replace(data, emission=functions.emission("mu-"))
     seed = fit._seed(detector, params, event, jnp.float32)
     frame = fit_frame(detector.shape, np.asarray(seed.direction), data.emission.energy_range,

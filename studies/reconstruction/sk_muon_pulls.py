@@ -54,7 +54,7 @@ def main() -> None:
     settings = RecoSettings(fits=args.fits, overdispersion=args.overdispersion)
     with pf.read_events(args.events) as events, open(args.out, "a") as out:
         detector, params = events.detector, events.params
-        functions = fitting._functions(detector, DTYPE, config, settings.overdispersion)
+        functions = fitting.likelihood_functions(detector, DTYPE, config, settings.overdispersion)
         predict = pf.expected_function(detector, DTYPE, config=config)
         window = tuple(float(x) for x in config.window)
         energy_range = functions.emission("mu-").energy_range
@@ -100,7 +100,7 @@ def main() -> None:
             if result.failure is None:
                 fitted = pf.Track("mu-", result.position, result.direction, result.energy,
                                   result.time)
-                data = fitting._event_data(detector, params, event, DTYPE, functions)
+                data = fitting.event_data(detector, params, event, DTYPE, functions)
                 data = dataclasses.replace(data, emission=functions.emission("mu-"))
                 cast = fitting.cast_track(fitted, DTYPE)
                 frame = fit_frame(detector.shape, fitted.direction, energy_range, "mu-",

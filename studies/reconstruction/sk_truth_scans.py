@@ -49,7 +49,7 @@ def main() -> None:
     window = tuple(float(x) for x in config.window)
     with pf.read_events(args.events) as events:
         detector, params = events.detector, events.params
-        functions = fitting._functions(detector, DTYPE, config)
+        functions = fitting.likelihood_functions(detector, DTYPE, config)
         predict = pf.expected_function(detector, DTYPE, config=config)
 
         @jax.jit
@@ -72,7 +72,7 @@ def main() -> None:
             event = events[k]
             truth = event.truth
             data = dataclasses.replace(
-                fitting._event_data(detector, params, event, DTYPE, functions),
+                fitting.event_data(detector, params, event, DTYPE, functions),
                 emission=functions.emission("mu-"))
             direction = np.asarray(truth.direction)
             reference = fitting.cast_track(pf.Track("mu-", truth.position, direction,

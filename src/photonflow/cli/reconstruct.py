@@ -62,6 +62,10 @@ def reconstruct(
     overdispersion: Annotated[float, typer.Option(
         help="r of the likelihood's per-sensor counts (variance mu + r mu^2), 0 to 0.5;"
              " 0 is Poisson (docs/reconstruction.md).")] = _DEFAULTS.overdispersion,
+    threads: Annotated[int | None, typer.Option(
+        help="Threads per fitting process for independent likelihood calls, 1 to 256"
+             " (default: the host's cores, shared among --workers); the results do not"
+             " depend on it.")] = None,
     workers: Annotated[int | None, typer.Option(
         help="Reconstruct on a local Dask cluster of this many worker processes.")] = None,
     scheduler: Annotated[str | None, typer.Option(
@@ -104,6 +108,8 @@ def reconstruct(
     if not 0.0 <= overdispersion <= MAX_OVERDISPERSION:
         raise ConfigError(f"--overdispersion = {overdispersion!r}: must be in"
                           f" [0, {MAX_OVERDISPERSION}]")
+    if threads is not None:
+        check_count("--threads", threads, 1, 256)
     if workers is not None and scheduler is not None:
         raise ConfigError(f"--scheduler = {scheduler!r}: not with --workers (choose one)")
     if workers is not None:
@@ -128,7 +134,7 @@ def reconstruct(
         settings = RecoSettings(fits=fits, restarts=restarts,
                                 scan_directions=scan_directions,
                                 max_iterations=max_iterations,
-                                overdispersion=overdispersion)
+                                overdispersion=overdispersion, threads=threads)
         run = {"events": _file_identity(event_file), "particle": particle, "method": method,
                "params": params_id, "bounces": bounces, "rays": rays,
                "emission_model": emission_model, "fits": fits, "restarts": restarts,

@@ -1,10 +1,12 @@
 """Event reconstruction: the vertex, time, direction, energy and particle type of a
 track fitted to an event's hits by maximum likelihood on the expected mode, with a
-MINUIT baseline (``fit``), its seeding (``seeding``) and coordinates
-(``coordinates``)."""
+MINUIT baseline (``fit``), its seeding (``seeding``), coordinates (``coordinates``)
+and the Cramér-Rao bound at a known track (``bounds``)."""
 
+from .bounds import cramer_rao_covariance
 from .coordinates import LOCAL
 from .fit import RecoSettings, reconstruct
-from .result import RecoResult
+from .result import RecoResult, covariance_errors
 
-__all__ = ["LOCAL", "RecoResult", "RecoSettings", "reconstruct"]
+__all__ = ["LOCAL", "RecoResult", "RecoSettings", "covariance_errors",
+           "cramer_rao_covariance", "reconstruct"]

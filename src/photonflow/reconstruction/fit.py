@@ -205,8 +205,8 @@ def reconstruct(detector, params, event, particle: str = "mu-", method: str = "g
     precision = "float64" if method == "minuit" else None
     with jax.enable_x64(True) if method == "minuit" else contextlib.nullcontext():
         dtype = jnp.dtype(settings.dtype or precision or default_float_dtype())
-        functions = _functions(detector, dtype, config, settings.overdispersion)
-        data = _event_data(detector, params, event, dtype, functions)
+        functions = likelihood_functions(detector, dtype, config, settings.overdispersion)
+        data = event_data(detector, params, event, dtype, functions)
         seed = _seed(detector, params, event, dtype) if start is None else start
         hypotheses = ("mu-", "e-") if particle == "auto" else (particle,)
         results = {}
@@ -292,9 +292,10 @@ jax.tree_util.register_dataclass(
 _FUNCTIONS: WeakKeyDictionary = WeakKeyDictionary()
 
 
-def _functions(detector, dtype, config: TransportConfig,
-               overdispersion: float = 0.0) -> _Functions:
-    """The cached ``_Functions`` of ``detector``."""
+def likelihood_functions(detector, dtype, config: TransportConfig,
+                         overdispersion: float = 0.0) -> _Functions:
+    """The cached ``_Functions`` (the fit's jitted likelihood pieces) of ``detector`` for
+    a float ``dtype``, a ``TransportConfig`` and the likelihood's ``overdispersion``."""
     cached = _FUNCTIONS.setdefault(detector, {})
     key = (jnp.dtype(dtype).name, config, overdispersion)
     if key not in cached:
@@ -363,7 +364,10 @@ def _build_functions(detector, dtype, config: TransportConfig,
                       sensors=sensors_for(detector, dtype))
 
 
-def _event_data(detector, params, event, dtype, functions) -> _EventData:
+def event_data(detector, params, event, dtype, functions) -> _EventData:
+    """``event``'s hits as the dense per-sensor arrays of ``_EventData`` (``dtype``), with
+    ``params`` and the detector's sensors from ``functions`` (``likelihood_functions``);
+    its emission model is set per hypothesis."""
     cast = lambda x: jnp.asarray(x, dtype)  # noqa: E731
     hit, charge, time = hit_arrays(event, detector.n_sensors, dtype)
     return _EventData(hit=hit, charge=charge, time=time, params=jax.tree.map(cast, params),

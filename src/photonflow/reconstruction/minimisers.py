@@ -135,10 +135,10 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
     # the last stage's held light: held at that stage's reference, within the refresh
     # thresholds of the fitted track unless the refreshes ran out
     data = staged
-    hessian, local_frame, centre = _hessian(functions, detector, model, data, reference,
+    hessian, local_frame, centre = hessian_at(functions, detector, model, data, reference,
                                             settings.threads)
     evaluations += 1
-    covariance = _inverse(hessian)
+    covariance = covariance_from_hessian(hessian)
     # a point whose Hessian is not positive definite is not a minimum (a saddle, or a
     # ridge the tolerance stopped on): never reported as converged
     minimum = bool(np.all(np.isfinite(covariance)))
@@ -271,7 +271,7 @@ def local_hessian(functions, frame, track: Track, data, wall: float = math.inf,
                       for k, h in enumerate(steps)])
 
 
-def _hessian(functions, detector, model, data, track, threads: int | None = None):
+def hessian_at(functions, detector, model, data, track, threads: int | None = None):
     """``local_hessian`` at ``track`` about its own direction, that ``FitFrame``, and
     the (value, gradient) there (``local_value_and_grad``; the Hessian's first pass and
     ``polish`` start from it)."""
@@ -286,9 +286,10 @@ def _hessian(functions, detector, model, data, track, threads: int | None = None
         centre
 
 
-def _inverse(hessian) -> np.ndarray:
-    """The covariance: the inverse of ``hessian`` (all NaN where it is not positive
-    definite)."""
+def covariance_from_hessian(hessian) -> np.ndarray:
+    """The covariance: the inverse of a (7, 7) ``hessian`` of the negative
+    log-likelihood (units: inverse squares of the coordinates'); all NaN where it is not
+    positive definite."""
     try:
         np.linalg.cholesky(hessian)
     except np.linalg.LinAlgError:

@@ -53,18 +53,8 @@ class RecoResult:
 
     @property
     def errors(self) -> dict[str, float]:
-        """1-sigma errors from the covariance: ``x``, ``y``, ``z`` (m), ``time`` (ns),
-        ``direction_deg`` (the rms of the two angle errors, degrees: the 1-sigma error
-        of the direction along any one axis across it) and ``energy_frac`` (the
-        fractional energy error)."""
-        variance = np.diag(np.asarray(self.covariance, np.float64))
-        sd = np.sqrt(np.where(variance >= 0, variance, np.nan))
-        return {
-            "x": float(sd[0]), "y": float(sd[1]), "z": float(sd[2]), "time": float(sd[3]),
-            "direction_deg": math.degrees(math.sqrt(0.5 * (variance[4] + variance[5])))
-            if variance[4] >= 0 and variance[5] >= 0 else math.nan,
-            "energy_frac": float(sd[6]),
-        }
+        """1-sigma errors from the covariance (``covariance_errors``)."""
+        return covariance_errors(self.covariance)
 
     @classmethod
     def failed(cls, reason: str, particle: str, method: str, seconds: float) -> RecoResult:
@@ -74,3 +64,18 @@ class RecoResult:
                    covariance=np.full((len(LOCAL), len(LOCAL)), np.nan), nll=math.nan,
                    particle=particle, converged=False, iterations=0, seconds=seconds,
                    failure=reason, method=method)
+
+
+def covariance_errors(covariance) -> dict[str, float]:
+    """1-sigma errors of a (7, 7) covariance in ``LOCAL`` coordinates: ``x``, ``y``,
+    ``z`` (m), ``time`` (ns), ``direction_deg`` (the rms of the two angle errors,
+    degrees: the 1-sigma error of the direction along any one axis across it) and
+    ``energy_frac`` (the fractional energy error); NaN where a variance is negative."""
+    variance = np.diag(np.asarray(covariance, np.float64))
+    sd = np.sqrt(np.where(variance >= 0, variance, np.nan))
+    return {
+        "x": float(sd[0]), "y": float(sd[1]), "z": float(sd[2]), "time": float(sd[3]),
+        "direction_deg": math.degrees(math.sqrt(0.5 * (variance[4] + variance[5])))
+        if variance[4] >= 0 and variance[5] >= 0 else math.nan,
+        "energy_frac": float(sd[6]),
+    }
