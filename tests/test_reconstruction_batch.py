@@ -233,6 +233,8 @@ def test_summary_quantities_on_a_known_table():
         np.quantile(np.abs(200 * along), 0.68))
     assert muons["direction_68_deg"] == pytest.approx(0.0, abs=1e-6)
     assert muons["energy_bias_frac"] == pytest.approx(np.median(energy / 1000 - 1))
+    assert muons["energy_resolution_68_frac"] == pytest.approx(np.quantile(
+        np.abs(energy / 1000 - 1 - np.median(energy / 1000 - 1)), 0.68))
     assert muons["seconds_per_event"] == 2.0
     widths = muons["pull_width"]
     assert widths["z"] == pytest.approx(1.0, abs=0.15)  # 2 x N(0, 0.1) / 0.2

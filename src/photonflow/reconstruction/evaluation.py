@@ -9,8 +9,10 @@ not fail: ``vertex_68_cm`` of the distance between the fitted and true vertex,
 ``longitudinal_68_cm`` / ``transverse_68_cm`` of its parts along and across the true
 direction, ``direction_68_deg`` of the angle between the directions, ``energy_68_frac``
 of (E_fit - E_true) / E_true, ``time_68_ns`` of t_fit - t_true. ``energy_bias_frac`` is
-the median of (E_fit - E_true) / E_true. ``misid_rate`` (only for a ``--particle auto``
-job) is the share of fitted events whose particle family (mu or e) is not the true one.
+the median of (E_fit - E_true) / E_true, and ``energy_resolution_68_frac`` the 68 %
+quantile of its distance from that median (the spread without the scale's bias).
+``misid_rate`` (only for a ``--particle auto`` job) is the share of fitted events whose
+particle family (mu or e) is not the true one.
 A pull is an error divided by its reported 1-sigma uncertainty, in the coordinates of
 the covariance (``coordinates.LOCAL``); its width is half the 16-84 % interval (1 for a
 correct uncertainty, insensitive to a few outliers).
@@ -168,6 +170,7 @@ def _metrics(table, errors, failed, rows, auto: bool) -> dict:
         "direction_68_deg": _quantile(pick["direction_deg"]),
         "energy_68_frac": _quantile(np.abs(pick["energy_frac"])),
         "energy_bias_frac": float(median) if math.isfinite(median) else None,
+        "energy_resolution_68_frac": _quantile(np.abs(pick["energy_frac"] - median)),
         "time_68_ns": _quantile(np.abs(pick["time_ns"])),
         "misid_rate": misid,
         "seconds_per_event": float(np.median(seconds)) if seconds.size else None,
@@ -229,6 +232,7 @@ _COLUMNS = (("n_events", "events", 1, "{:.0f}"), ("n_failed", "failed", 1, "{:.0
             ("direction_68_deg", "dir. deg", 1, "{:.2f}"),
             ("energy_68_frac", "energy %", 100, "{:.2f}"),
             ("energy_bias_frac", "bias %", 100, "{:+.2f}"),
+            ("energy_resolution_68_frac", "E spread %", 100, "{:.2f}"),
             ("time_68_ns", "time ns", 1, "{:.2f}"), ("misid_rate", "misid %", 100, "{:.1f}"),
             ("seconds_per_event", "s/event", 1, "{:.2f}"))
 
