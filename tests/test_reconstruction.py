@@ -456,3 +456,15 @@ def test_the_energy_seed_of_a_track_that_leaves_the_detector(toy, energy, bound)
                       "mu-", 0.0, jnp.float32)
     seeded = fit.seed_energy(functions, detector, data, frame, seed, "mu-")
     assert abs(seeded / energy - 1.0) < bound, seeded
+
+
+def test_a_fit_at_the_end_of_the_energy_range_is_not_a_minimum():
+    """A fit whose energy ran to within 1 % of an end of the emission model's range (a
+    leaving muon's light bounds its energy from below only) is never converged."""
+    from photonflow.reconstruction.minimisers import at_energy_edge
+
+    span = (60.0, 5000.0)
+    assert at_energy_edge(4990.0, span) and at_energy_edge(5000.0, span)
+    assert at_energy_edge(60.3, span) and at_energy_edge(6000.0, span)
+    assert not at_energy_edge(4900.0, span) and not at_energy_edge(61.0, span)
+    assert not at_energy_edge(1000.0, span)

@@ -1,12 +1,13 @@
 """The e/mu reconstruction study of docs/reconstruction.md ("Muons and electrons"):
 ``python examples/reconstruction/sk_mu_e.py --events N --out-dir DIR``.
 
-SK with its preset response: N 1 GeV muons and N 500 MeV electrons from the generator
-and the sampled mode (vertices uniform at least 2 m inside the walls, isotropic
-directions), each reconstructed from its hits alone with ``--particle auto`` (both
-hypotheses fitted, the likelier kept), then summarised by ``photonflow evaluate``
-(resolutions per particle, misidentification, pulls, plots). Every stage is a
-``photonflow`` command and is resumable: run the same command again after an
+SK with its preset response (or ``--detector``, e.g. IWCD; ``--energies MU,E`` MeV):
+N 1 GeV muons and N 500 MeV electrons from the generator and the sampled mode
+(vertices uniform in ``photonflow simulate``'s fiducial volume, at least 2 m inside the
+walls in SK, isotropic directions), each reconstructed from its hits alone with
+``--particle auto`` (both hypotheses fitted, the likelier kept), then summarised by
+``photonflow evaluate`` (resolutions per particle, misidentification, pulls, plots).
+Every stage is a ``photonflow`` command and is resumable: run the same command again after an
 interruption and it goes on where it stopped (the event file is made once; the
 reconstruction resumes at its first missing event).
 """
@@ -18,8 +19,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-#: (particle, kinetic energy MeV, seed offset) of the two samples.
-SAMPLES = (("mu-", 1000.0, 0), ("e-", 500.0, 1))
+#: (particle, seed offset) of the two samples ...
+SAMPLES = (("mu-", 0), ("e-", 1))
+#: ... and their kinetic energies (MeV) unless ``--energies`` says otherwise.
+ENERGIES = "1000,500"
 
 
 def _photonflow(*arguments: str) -> None:
@@ -43,14 +46,19 @@ def main() -> None:
     parser.add_argument("--fits", type=int, default=None,
                         help="starts fitted per hypothesis (default: the command's)")
     parser.add_argument("--workers", type=int, default=None)
+    parser.add_argument("--detector", default="SK", help="preset or configuration file")
+    parser.add_argument("--energies", default=ENERGIES,
+                        help="kinetic energies of the muons and the electrons, MeV")
     args = parser.parse_args()
+    energies = [float(x) for x in args.energies.split(",")]
     folder = args.out_dir
     folder.mkdir(parents=True, exist_ok=True)
     events = folder / "events.h5"
     if not events.exists():
         Path(str(events) + ".part").unlink(missing_ok=True)  # an interrupted start
-        for k, (particle, energy, offset) in enumerate(SAMPLES):
-            _photonflow("simulate", "--detector", "SK", "--particle", particle,
+        for k, ((particle, offset), energy) in enumerate(zip(SAMPLES, energies,
+                                                              strict=True)):
+            _photonflow("simulate", "--detector", args.detector, "--particle", particle,
                         "--energy", str(energy), "--events", str(args.events),
                         "--seed", str(args.seed + offset), "--out", str(events) + ".part",
                         "--mode", "create" if k == 0 else "append")

@@ -107,14 +107,18 @@ def _bound_draws(covariance, truth, rng) -> list[dict]:
 
 
 def _quantiles(rows: list[dict]) -> dict:
-    """68 % quantiles of the errors, and the median energy bias."""
+    """68 % quantiles of the errors, the median energy bias and the 68 % quantile of the
+    energy error's distance from it."""
     if not rows:
         return {}
     return {"n": len(rows),
             "vertex_68_cm": float(np.quantile([r["vertex_cm"] for r in rows], 0.68)),
             "direction_68_deg": float(np.quantile([r["direction_deg"] for r in rows], 0.68)),
             "energy_68_frac": float(np.quantile([abs(r["energy_frac"]) for r in rows], 0.68)),
-            "energy_bias_frac": float(np.median([r["energy_frac"] for r in rows]))}
+            "energy_bias_frac": float(np.median([r["energy_frac"] for r in rows])),
+            "energy_resolution_68_frac": float(np.quantile(np.abs(
+                np.subtract([r["energy_frac"] for r in rows],
+                            np.median([r["energy_frac"] for r in rows]))), 0.68))}
 
 
 def main() -> None:
@@ -193,11 +197,13 @@ def main() -> None:
         summary[particle] = block
     (folder / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     for particle, block in summary.items():
-        print(f"{particle}: {'':18} vertex 68%  direction 68%  energy 68%  bias   converged")
+        print(f"{particle}: {'':18} vertex 68%  direction 68%  energy 68%  bias  spread"
+              "  converged")
         for name, q in block.items():
             if q.get("n"):
                 print(f"  {name:24} {q['vertex_68_cm']:6.1f} cm {q['direction_68_deg']:8.2f}°"
                       f" {100 * q['energy_68_frac']:8.1f} % {100 * q['energy_bias_frac']:+6.1f} %"
+                      f" {100 * q['energy_resolution_68_frac']:5.1f} %"
                       f"  {q.get('converged', '')}")
 
 
