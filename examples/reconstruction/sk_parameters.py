@@ -97,7 +97,9 @@ def _bound_draws(covariance, truth, rng) -> list[dict]:
     from photonflow.transport.optics import orthonormal_basis
 
     draws = rng.multivariate_normal(np.zeros(7), covariance, size=BOUND_DRAWS)
-    first, second = (np.asarray(v, np.float64) for v in orthonormal_basis(truth.direction))
+    # any basis across the direction gives the same angles' size (the LOCAL one here)
+    first, second = (np.asarray(v, np.float64) for v in orthonormal_basis(
+        np.asarray(truth.direction, np.float32)))
     rows = []
     for d in draws:
         direction = truth.direction + d[4] * first + d[5] * second
