@@ -51,10 +51,10 @@ def glibc_version() -> str | None:
 
 def configure_host_allocator() -> bool:
     """Set glibc's allocator to one arena and its mmap and trim thresholds to
-    ``THRESHOLD`` (module docstring), unless
-    ``PHOTONFLOW_HOST_ALLOCATOR`` is ``system`` or the C library is not glibc (called
-    once when photonflow is imported, before JAX starts its threads). Returns whether
-    all three were set."""
+    ``THRESHOLD`` (module docstring), unless ``PHOTONFLOW_HOST_ALLOCATOR`` is ``system``
+    or the C library is not glibc. Called once when photonflow is imported; threads
+    that already hold an arena of their own (JAX run before photonflow was imported)
+    keep it. Returns whether all three were set."""
     if os.environ.get(ENVIRONMENT, "").strip().lower() == "system" or glibc_version() is None:
         return False
     try:

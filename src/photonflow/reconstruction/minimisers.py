@@ -137,7 +137,7 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
     # thresholds of the fitted track unless the refreshes ran out
     data = staged
     hessian, local_frame, centre = hessian_at(functions, detector, model, data, reference,
-                                            settings.threads)
+                                              settings.threads)
     evaluations += 1
     covariance = covariance_from_hessian(hessian)
     # a point whose Hessian is not positive definite is not a minimum (a saddle, or a
