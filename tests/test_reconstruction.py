@@ -357,7 +357,8 @@ def test_the_score_information_is_the_likelihoods_curvature_where_the_model_hold
 def test_a_fit_without_a_positive_definite_hessian_is_not_converged(toy, sampled_event,
                                                                     monkeypatch):
     """A fit that stops where the Hessian is not positive definite (a saddle: one SK
-    muon fitted to 2.8 GeV did) is reported, but not as converged."""
+    muon fitted to 2.8 GeV did), or at an end of the emission model's energy range, is
+    reported, but not as converged."""
     from photonflow.reconstruction import minimisers
 
     detector, params = toy
@@ -372,6 +373,14 @@ def test_a_fit_without_a_positive_definite_hessian_is_not_converged(toy, sampled
     assert saddle.failure is None and not saddle.converged
     # the same fit, without the Newton polish that only a minimum gets
     assert good.nll - 1e-3 <= saddle.nll <= good.nll + 0.5  # float32 rounding: 1e-3
+    monkeypatch.undo()
+    # and one whose energy the model's range stopped (here: every energy counts as the
+    # range's end) is not converged either, with its covariance kept
+    monkeypatch.setattr(minimisers, "at_energy_edge", lambda energy, energy_range: True)
+    edge = reconstruct(detector, params, sampled_event, "mu-", config=CONFIG,
+                       settings=short, start=TRUTH)
+    assert edge.failure is None and not edge.converged
+    assert np.all(np.isfinite(edge.covariance))
 
 
 @pytest.mark.parametrize("restarts", [0, 2])

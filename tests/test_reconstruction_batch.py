@@ -154,6 +154,7 @@ def test_file_level_problems_are_one_line_and_exit_2(folder):
         (["--out", "reference.h5"], "file exists"),
         (["--out", "x.h5", "--particle", "tau"], "particle"),
         (["--out", "x.h5", "--overdispersion", "0.7"], "--overdispersion"),
+        (["--out", "x.h5", "--rays", "0"], "--rays"),
         (["--out", "x.h5", "--threads", "0"], "--threads"),
         (["--out", "x.h5", "--emission-model", "table"], "--emission-model"),
         (["--out", "plots_folder"], "is a folder"),

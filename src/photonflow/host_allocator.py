@@ -34,8 +34,11 @@ import os
 #: Environment variable: ``system`` keeps the C library's allocator settings.
 ENVIRONMENT = "PHOTONFLOW_HOST_ALLOCATOR"
 #: Bytes: allocations up to this come from the heap, and free memory up to this at its
-#: top stays with the process (``mallopt`` takes a C int: 2 GiB - 1 is its largest).
+#: top stays with the process (``mallopt`` takes a C int: 2 GiB - 1 is its largest) ...
 THRESHOLD = 2**31 - 1
+#: ... or, where glibc refuses an mmap threshold that high (versions that cap it at
+#: half a thread heap's size), this one, the cap of 64-bit systems.
+CAPPED_MMAP_THRESHOLD = 32 * 2**20
 #: glibc's ``mallopt`` parameters (malloc.h).
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD, M_ARENA_MAX = -1, -3, -8
 
@@ -54,7 +57,8 @@ def configure_host_allocator() -> bool:
     ``THRESHOLD`` (module docstring), unless ``PHOTONFLOW_HOST_ALLOCATOR`` is ``system``
     or the C library is not glibc. Called once when photonflow is imported; threads
     that already hold an arena of their own (JAX run before photonflow was imported)
-    keep it. Returns whether all three were set."""
+    keep it. Returns whether all three were set as asked (False also where glibc
+    refuses the mmap threshold and ``CAPPED_MMAP_THRESHOLD`` is set instead)."""
     if os.environ.get(ENVIRONMENT, "").strip().lower() == "system" or glibc_version() is None:
         return False
     try:
@@ -63,5 +67,7 @@ def configure_host_allocator() -> bool:
     except (OSError, AttributeError):
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-    return all([mallopt(M_ARENA_MAX, 1), mallopt(M_MMAP_THRESHOLD, THRESHOLD),
-                mallopt(M_TRIM_THRESHOLD, THRESHOLD)])
+    mmap = bool(mallopt(M_MMAP_THRESHOLD, THRESHOLD))
+    if not mmap:
+        mallopt(M_MMAP_THRESHOLD, CAPPED_MMAP_THRESHOLD)  # the most this glibc allows
+    return all([mallopt(M_ARENA_MAX, 1), mmap, mallopt(M_TRIM_THRESHOLD, THRESHOLD)])

@@ -5,7 +5,8 @@ the likelihood at a fit's starts or the gradients of a Hessian's differences, ov
 their host-side work (argument handling, dispatch, results) with each other's programs
 from several threads. The gain is modest on the CPU: XLA's CPU client runs the programs
 of one device mostly one after the other (an SK value and gradient: 98 ms per call
-from two threads against 112 ms from one, ``BENCHMARKS.md``). The results do not
+from two threads against 112 ms from one, measured before ``host_allocator``,
+``BENCHMARKS.md``). The results do not
 depend on the number of threads: every call computes what it would alone, and results
 come back in the order of the items. Keep the calls short: an interrupt waits for the
 calls in flight.
