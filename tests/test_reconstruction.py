@@ -359,7 +359,7 @@ def test_a_fit_without_a_positive_definite_hessian_is_not_converged(toy, sampled
     """A fit that stops where the Hessian is not positive definite (a saddle: one SK
     muon fitted to 2.8 GeV did), or at an end of the emission model's energy range, is
     reported, but not as converged."""
-    from photonflow.reconstruction import minimisers
+    from photonflow.reconstruction import fit, minimisers
 
     detector, params = toy
     short = RecoSettings(fits=1, scan_directions=0)
@@ -376,7 +376,7 @@ def test_a_fit_without_a_positive_definite_hessian_is_not_converged(toy, sampled
     monkeypatch.undo()
     # and one whose energy the model's range stopped (here: every energy counts as the
     # range's end) is not converged either, with its covariance kept
-    monkeypatch.setattr(minimisers, "at_energy_edge", lambda energy, energy_range: True)
+    monkeypatch.setattr(fit, "at_energy_edge", lambda energy, energy_range: True)
     edge = reconstruct(detector, params, sampled_event, "mu-", config=CONFIG,
                        settings=short, start=TRUTH)
     assert edge.failure is None and not edge.converged
@@ -470,7 +470,7 @@ def test_the_energy_seed_of_a_track_that_leaves_the_detector(toy, energy, bound)
 def test_a_fit_at_the_end_of_the_energy_range_is_not_a_minimum():
     """A fit whose energy ran to within 1 % of an end of the emission model's range (a
     leaving muon's light bounds its energy from below only) is never converged."""
-    from photonflow.reconstruction.minimisers import at_energy_edge
+    from photonflow.reconstruction.fit import at_energy_edge
 
     span = (60.0, 5000.0)
     assert at_energy_edge(4990.0, span) and at_energy_edge(5000.0, span)

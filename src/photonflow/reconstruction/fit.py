@@ -102,10 +102,7 @@ class RecoSettings:
     """Settings of ``reconstruct``.
 
     Attributes:
-        fits: how many of the starts (the likeliest) are fitted (1: with the score
-            metric, the single-start fits of the SK benchmark's 8 muons and 6
-            electrons converged, and 39 of the 40 kept fits of a 20 + 20 e/mu run; the
-            other, a muon leaving the detector, did not with its restarts either).
+        fits: how many of the starts (the likeliest) are fitted.
         restarts: further starts, the next likeliest, fitted one after another while
             none of the fits has converged (a fit that ran off, to a saddle or to the
             iteration limit, is followed by a fit from another start).
@@ -396,9 +393,15 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
     model = functions.emission(particle)  # the configured model (spline or SIREN)
     data = dataclasses.replace(data, emission=model)
     minimise = minimise_gradient if method == "gradient" else minimise_minuit
+
+    def fit_from(start):
+        fit = minimise(functions, detector, model, data, start, settings)
+        # a fit at an end of the model's energy range found no minimum there
+        return dataclasses.replace(fit, converged=fit.converged and not at_energy_edge(
+            fit.energy, model.energy_range))
+
     if isinstance(seed, Track):
-        fit = minimise(functions, detector, model, data, seed, settings)
-        return dataclasses.replace(fit, seconds=clock.perf_counter() - began)
+        return dataclasses.replace(fit_from(seed), seconds=clock.perf_counter() - began)
     dtype = data.charge.dtype
     direction = np.asarray(seed.direction, np.float64)
     vertex = np.asarray(seed.vertex, np.float64)
@@ -439,13 +442,26 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
         if rank >= settings.fits and (rank >= settings.fits + settings.restarts
                                       or any(f.converged for f in fits)):
             break
-        fits.append(minimise(functions, detector, model, data, start, settings))
+        fits.append(fit_from(start))
     good = [f for f in fits if f.failure is None]
     # a converged fit before any that stopped short of a minimum, then the likeliest
     best = min(good, key=lambda f: (not f.converged, f.nll)) if good else fits[0]
     return dataclasses.replace(best, seconds=clock.perf_counter() - began,
                                iterations=sum(f.iterations for f in fits),
                                evaluations=sum(f.evaluations for f in fits) + len(starts) + 1)
+
+
+#: A fit whose energy ends within this fraction of an end of the emission model's
+#: energy range has not found a minimum (a track leaving the detector, whose light
+#: bounds its energy from below only, runs to the model's highest energy).
+ENERGY_EDGE = 0.01
+
+
+def at_energy_edge(energy: float, energy_range) -> bool:
+    """Whether ``energy`` (MeV) lies within ``ENERGY_EDGE`` (relative) of an end of
+    ``energy_range`` (MeV, lowest and highest), beyond it, or is NaN."""
+    low, high = (float(x) for x in energy_range)
+    return not low * (1.0 + ENERGY_EDGE) < float(energy) < high * (1.0 - ENERGY_EDGE)
 
 
 def seed_energy(functions, detector, data, frame, seed, particle: str) -> float:

@@ -7,8 +7,7 @@ reference refreshes of the module docstring of ``fit``:
 - ``minimise_minuit``: MIGRAD with numerical derivatives, errors by HESSE.
 
 Both return a ``RecoResult`` (``converged`` only at a minimum with a positive-definite
-Hessian, away from the ends of the emission model's energy range). Lengths m, times
-ns, energies MeV.
+Hessian). Lengths m, times ns, energies MeV.
 """
 
 from __future__ import annotations
@@ -154,25 +153,11 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
         converged = converged or (stopped and remaining <= settings.tolerance)
     else:
         value = centre[0]
-    converged = converged and not at_energy_edge(reference.energy, model.energy_range)
     return RecoResult(position=np.asarray(reference.position), time=float(reference.time),
                       direction=np.asarray(reference.direction),
                       energy=float(reference.energy), covariance=covariance, nll=value,
                       particle=start.particle, converged=converged, iterations=iterations,
                       seconds=0.0, method="gradient", evaluations=evaluations)
-
-
-#: A fit whose energy ends within this fraction of an end of the emission model's
-#: energy range has not found a minimum (a track leaving the detector, whose light
-#: bounds its energy from below only, runs to the model's highest energy).
-ENERGY_EDGE = 0.01
-
-
-def at_energy_edge(energy: float, energy_range) -> bool:
-    """Whether ``energy`` (MeV) lies within ``ENERGY_EDGE`` (relative) of an end of
-    ``energy_range`` (MeV, lowest and highest) or beyond it."""
-    low, high = (float(x) for x in energy_range)
-    return not low * (1.0 + ENERGY_EDGE) < float(energy) < high * (1.0 - ENERGY_EDGE)
 
 
 def _inverse_metric(information: np.ndarray) -> np.ndarray | None:
@@ -408,8 +393,7 @@ def minimise_minuit(functions, detector, model, data, start, settings) -> RecoRe
     evaluations += minuit.nfcn
     covariance = _local_covariance(frame, np.asarray(minuit.values), reference,
                                    np.asarray(minuit.covariance, np.float64), dtype)
-    converged = converged and bool(minuit.fmin.has_posdef_covar) and \
-        not at_energy_edge(reference.energy, model.energy_range)
+    converged = converged and bool(minuit.fmin.has_posdef_covar)
     return RecoResult(position=np.asarray(reference.position), time=float(reference.time),
                       direction=np.asarray(reference.direction),
                       energy=float(reference.energy), covariance=covariance,
