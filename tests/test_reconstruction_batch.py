@@ -14,6 +14,7 @@ import dataclasses
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -31,7 +32,7 @@ from photonflow.reconstruction.evaluation import contained_events, summarize
 
 #: Short fits (the file's content and the job's bookkeeping are under test, not the fits).
 FAST = ["--bounces", "0", "--fits", "1", "--restarts", "0", "--scan-directions", "0",
-        "--max-iterations", "3"]
+        "--max-iterations", "3", "--variability-events", "8"]
 CONFIG = pf.TransportConfig(n_bounces=0)
 
 
@@ -109,6 +110,19 @@ def test_the_reference_job_records_every_event(folder):
     assert np.all(np.isfinite(table.reco["nll"][fitted]))
     assert set(table.reco["particle"]) == {"mu-"}
     assert np.isnan(table.reco["energy"][2]) and table.truth["particle"][2] == ""
+    # the sandwich, H^-1 and the bias of 8 simulated events where H is positive definite
+    kept = [k for k in fitted if np.all(np.isfinite(table.reco["fisher_covariance"][k]))]
+    assert kept, table.reco["fisher_covariance"]
+    assert np.all(np.isfinite(table.reco["bias"][kept]))
+    assert np.all(np.isnan(table.reco["bias"][2]))
+    # a file written before those fields existed reads them as NaN
+    old = folder / "without_later_fields.h5"
+    shutil.copyfile(folder / "reference.h5", old)
+    with h5py.File(old, "r+") as h5:
+        del h5["reco/fisher_covariance"], h5["reco/bias"]
+    earlier = read_reco(old)
+    assert np.all(np.isnan(earlier.reco["bias"])) and earlier.reco["bias"].shape == (4, 7)
+    np.testing.assert_array_equal(earlier.reco["covariance"], table.reco["covariance"])
 
 
 def test_a_job_killed_midway_and_resumed_writes_the_same_file(folder):
@@ -156,6 +170,7 @@ def test_file_level_problems_are_one_line_and_exit_2(folder):
         (["--out", "x.h5", "--overdispersion", "0.7"], "--overdispersion"),
         (["--out", "x.h5", "--rays", "0"], "--rays"),
         (["--out", "x.h5", "--threads", "0"], "--threads"),
+        (["--out", "x.h5", "--variability-events", "3"], "--variability-events"),
         (["--out", "x.h5", "--emission-model", "table"], "--emission-model"),
         (["--out", "plots_folder"], "is a folder"),
         (["--out", "events.h5", "--mode", "recreate"], "the event file itself"),

@@ -8,8 +8,9 @@ from typing import TYPE_CHECKING
 
 from . import _startup as _startup  # first: the command exits 130 on Ctrl-C while JAX loads
 from .host_allocator import configure_host_allocator
-from .xla_settings import configure_xla_flags
+from .xla_settings import configure_reduction_fusion, configure_xla_flags
 
+configure_reduction_fusion()  # right batched sums on jaxlib 0.10's CPU (xla_settings)
 configure_xla_flags()  # opt-in, before any JAX backend starts (photonflow.xla_settings)
 configure_host_allocator()  # large buffers reused between calls (photonflow.host_allocator)
 

@@ -1,23 +1,40 @@
-"""An opt-in XLA setting for short jobs on the CPU: XLA's classic CPU emitters.
+"""XLA settings photonflow makes on import, before JAX starts a backend.
 
+**A correctness setting (always).** jaxlib 0.10's CPU compiler hands a reduction fused
+with element-wise work to its YNNPACK fusions, and those return wrong values for all
+but the first rows of a batched reduction of detector size: a sum over the time
+mixture's components of 4 events of SK's 11,146 sensors (``vmap``ped or batched by
+hand) came back wrong by up to ~10 in log p for events 2 and 3, in float32 (the first
+two events, single events, float64 and smaller arrays were right). The calibration's
+likelihood terms and event Fisher information on SK were affected; the expected mode,
+the fit's likelihood and its gradients were not. photonflow adds
+``--xla_cpu_experimental_ynn_fusion_type=-reduce`` (``YNN_REDUCE_OFF``: no YNNPACK
+fusion of reductions) to ``XLA_FLAGS`` on import, which restores the right values, when
+
+- ``XLA_FLAGS`` does not already set ``xla_cpu_experimental_ynn_fusion_type``;
+- no JAX backend has started yet (XLA reads ``XLA_FLAGS`` once, when JAX first starts
+  a backend: import photonflow before running other JAX code);
+- the installed jaxlib is a version known to have the fault and to accept the flag
+  (``YNN_JAXLIB``): an unknown flag in ``XLA_FLAGS`` stops the process when XLA starts.
+
+``tests/test_xla_settings.py`` checks the batched reduction against single calls in a
+fresh process, so a jaxlib that has the fault without knowing the flag fails the suite.
+
+**An opt-in setting for short jobs on the CPU: XLA's classic CPU emitters.**
 photonflow's programs (the expected mode and its gradient, the sampled mode, the
 likelihood) are large element-wise graphs. On the CPU, XLA's classic emitters compile
 them about a third faster than the MLIR fusion emitters that are XLA's default, but
 some compiled programs run slower (BENCHMARKS.md, docs/performance.md): they suit
-short, interactive jobs dominated by compilation, not long fits. XLA reads its flags
-from the environment variable ``XLA_FLAGS`` once, when JAX first starts a backend, so
-with ``PHOTONFLOW_XLA_CPU_EMITTERS=classic`` photonflow adds
-``--xla_cpu_use_fusion_emitters=false`` to it on import, when also
+short, interactive jobs dominated by compilation, not long fits. With
+``PHOTONFLOW_XLA_CPU_EMITTERS=classic`` photonflow adds
+``--xla_cpu_use_fusion_emitters=false`` to ``XLA_FLAGS`` on import, when also
 
 - ``XLA_FLAGS`` does not already say which emitters to use;
-- no JAX backend has started yet (otherwise the flag would not be read: nothing
-  changes);
-- the installed jaxlib is a version known to accept the flag (``KNOWN_JAXLIB``): an
-  unknown flag in ``XLA_FLAGS`` stops the process when XLA starts, so for any other
-  version nothing is added.
+- no JAX backend has started yet;
+- the installed jaxlib is a version known to accept the flag (``KNOWN_JAXLIB``).
 
-The flag only concerns XLA's CPU compiler; programs for a GPU are compiled as before.
-Child processes (``simulate --workers``) inherit the environment and with it the flag.
+Both flags only concern XLA's CPU compiler; programs for a GPU are compiled as before.
+Child processes (``simulate --workers``) inherit the environment and with it the flags.
 """
 
 from __future__ import annotations
@@ -30,6 +47,10 @@ ENVIRONMENT = "PHOTONFLOW_XLA_CPU_EMITTERS"
 CLASSIC_EMITTERS = "--xla_cpu_use_fusion_emitters=false"
 #: jaxlib (major, minor) versions on which the flag was checked to be accepted.
 KNOWN_JAXLIB = ((0, 10),)
+#: The flag that keeps reductions out of XLA's YNNPACK fusions on the CPU ...
+YNN_REDUCE_OFF = "--xla_cpu_experimental_ynn_fusion_type=-reduce"
+#: ... and the jaxlib (major, minor) versions that need it and accept it.
+YNN_JAXLIB = ((0, 10),)
 
 
 def jaxlib_version() -> tuple[int, int] | None:
@@ -58,4 +79,18 @@ def configure_xla_flags() -> bool:
     ):
         return False
     os.environ["XLA_FLAGS"] = f"{flags} {CLASSIC_EMITTERS}".strip()
+    return True
+
+
+def configure_reduction_fusion() -> bool:
+    """Add ``YNN_REDUCE_OFF`` to ``XLA_FLAGS`` under the module docstring's rules (called
+    once when photonflow is imported). Returns whether it was added."""
+    from jax._src import xla_bridge  # only to ask whether a backend has started
+
+    flags = os.environ.get("XLA_FLAGS", "")
+    if ("xla_cpu_experimental_ynn_fusion_type" in flags
+            or xla_bridge.backends_are_initialized()
+            or jaxlib_version() not in YNN_JAXLIB):
+        return False
+    os.environ["XLA_FLAGS"] = f"{flags} {YNN_REDUCE_OFF}".strip()
     return True

@@ -62,6 +62,15 @@ def reconstruct(
     overdispersion: Annotated[float, typer.Option(
         help="r of the likelihood's per-sensor counts (variance mu + r mu^2), 0 to 0.5;"
              " 0 is Poisson (docs/reconstruction.md).")] = _DEFAULTS.overdispersion,
+    variability_events: Annotated[int, typer.Option(
+        "--variability-events", help="Events simulated at each fitted track for the"
+        " reported covariance (the sandwich H^-1 J H^-1; docs/reconstruction.md), 0 or 8"
+        " to 10,000; 0: the inverse Fisher information alone.")]
+    = _DEFAULTS.variability_events,
+    bias_correction: Annotated[bool, typer.Option(
+        "--bias-correction/--no-bias-correction", help="Report each fit less its"
+        " first-order bias over those events (docs/reconstruction.md).")]
+    = _DEFAULTS.bias_correction,
     threads: Annotated[int | None, typer.Option(
         help="Threads per fitting process for independent likelihood calls, 1 to 256"
              " (default: the host's cores, shared among --workers); the results do not"
@@ -92,6 +101,7 @@ def reconstruct(
     from ..likelihood import MAX_OVERDISPERSION
     from ..params import validate_params
     from ..reconstruction.batch import check_batch_options
+    from ..reconstruction.settings import MIN_VARIABILITY_EVENTS
 
     check_batch_options(particle, method)
     check_count("--bounces", bounces, 0, MAX_BOUNCES)
@@ -108,6 +118,9 @@ def reconstruct(
     if not 0.0 <= overdispersion <= MAX_OVERDISPERSION:
         raise ConfigError(f"--overdispersion = {overdispersion!r}: must be in"
                           f" [0, {MAX_OVERDISPERSION}]")
+    if variability_events != 0:
+        check_count("--variability-events", variability_events, MIN_VARIABILITY_EVENTS,
+                    10_000)
     if threads is not None:
         check_count("--threads", threads, 1, 256)
     if workers is not None and scheduler is not None:
@@ -134,12 +147,15 @@ def reconstruct(
         settings = RecoSettings(fits=fits, restarts=restarts,
                                 scan_directions=scan_directions,
                                 max_iterations=max_iterations,
-                                overdispersion=overdispersion, threads=threads)
+                                overdispersion=overdispersion, threads=threads,
+                                variability_events=variability_events,
+                                bias_correction=bias_correction)
         run = {"events": _file_identity(event_file), "particle": particle, "method": method,
                "params": params_id, "bounces": bounces, "rays": rays,
                "emission_model": emission_model, "fits": fits, "restarts": restarts,
                "scan_directions": scan_directions, "max_iterations": max_iterations,
-               "overdispersion": settings.overdispersion}
+               "overdispersion": settings.overdispersion,
+               "variability_events": variability_events, "bias_correction": bias_correction}
         writer = RecoWriter(out, detector, run, events_file=str(events.resolve()),
                             mode=mode, resume=resume)
         _run_job(writer, event_file, detector, detector_params, particle, method, config,

@@ -69,7 +69,11 @@ RECO_FIELDS = {
     "evaluations": (np.dtype(np.int64), ()),
     "seconds": (np.dtype(np.float64), ()),
     "failure": (STRING_DTYPE, ()),
+    "fisher_covariance": (np.dtype(np.float64), (7, 7)),
+    "bias": (np.dtype(np.float64), (7,)),
 }
+#: Fields a file written before they existed lacks (read as NaN).
+LATER_FIELDS = ("fisher_covariance", "bias")
 #: Order of the columns of ``/reco/errors`` (``RecoResult.errors``).
 ERROR_NAMES = ("x", "y", "z", "time", "direction_deg", "energy_frac")
 #: name -> (dtype, trailing shape) of the truth copied into ``/truth``.
@@ -97,6 +101,8 @@ def reco_row(index: int, result, truth) -> dict:
         "converged": result.converged, "iterations": result.iterations,
         "evaluations": result.evaluations, "seconds": result.seconds,
         "failure": result.failure or "",
+        "fisher_covariance": _or_nan(result.fisher_covariance, (7, 7)),
+        "bias": _or_nan(result.bias, (7,)),
     }
     nan3 = np.full(3, np.nan)
     row["truth"] = {
@@ -107,6 +113,11 @@ def reco_row(index: int, result, truth) -> dict:
         "time": np.nan if truth is None else truth.time,
     }
     return row
+
+
+def _or_nan(value, shape) -> np.ndarray:
+    """``value`` as a float64 array, or NaN of ``shape`` where it is None."""
+    return np.full(shape, np.nan) if value is None else np.asarray(value, np.float64)
 
 
 class RecoWriter:
@@ -299,7 +310,9 @@ def read_reco(path) -> RecoTable:
 
             def read(group, fields):
                 return {name: (group[name].asstr()[:n] if dtype == STRING_DTYPE
-                               else group[name][:n]) for name, (dtype, _) in fields.items()}
+                               else group[name][:n]) if name in group
+                        else np.full((n, *tail), np.nan)  # a LATER_FIELDS one
+                        for name, (dtype, tail) in fields.items()}
 
             reco, truth = read(h5["reco"], RECO_FIELDS), read(h5["truth"], TRUTH_COPY)
             attrs = {key: _text_attr(h5, key) for key in h5.attrs}

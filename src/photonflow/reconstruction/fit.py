@@ -46,7 +46,7 @@ from ..emission import emission_model
 from ..errors import ConfigError
 from ..generator.track import Track
 from ..geometry.sensor_arrays import sensors_for
-from ..likelihood import check_overdispersion, dark_expectation, dense_sensor_nll, hit_arrays
+from ..likelihood import dark_expectation, dense_sensor_nll, hit_arrays
 from ..numerics import default_float_dtype
 from ..threads import parallel_map
 from ..transport.expected import expected_function, held_indirect_function
@@ -63,6 +63,8 @@ from .coordinates import (
 from .minimisers import cast_track, minimise_gradient, minimise_minuit, staged_data
 from .result import RecoResult
 from .seeding import energy_from_charge, point_source_seed
+from .settings import RecoSettings
+from .variability import score_function, with_variability
 
 #: Particle hypotheses a fit takes; "auto" fits both and keeps the likelier.
 PARTICLES = ("mu-", "e-", "auto")
@@ -95,71 +97,6 @@ def sphere_directions(count: int) -> np.ndarray:
     azimuth = np.pi * (1.0 + 5.0**0.5) * k
     sine = np.sqrt(1.0 - cos * cos)
     return np.stack([sine * np.cos(azimuth), sine * np.sin(azimuth), cos], axis=-1)
-
-
-@dataclasses.dataclass(frozen=True)
-class RecoSettings:
-    """Settings of ``reconstruct``.
-
-    Attributes:
-        fits: how many of the starts (the likeliest) are fitted.
-        restarts: further starts, the next likeliest, fitted one after another while
-            none of the fits has converged (a fit that ran off, to a saddle or to the
-            iteration limit, is followed by a fit from another start).
-        scan_directions: directions spread over the sphere with starts behind the
-            point-source vertex (``SCAN_SHARES``) and the detector's centre, besides
-            the seeded direction and its opposite.
-        max_iterations: optimiser iterations per fit stage.
-        tolerance: a fit stage ends when the negative log-likelihood fell by less than
-            this in each of the last ``patience`` iterations (0.01: a change of the
-            likelihood far below one standard deviation's 0.5, and above float32's
-            resolution of an SK event's ~3e4).
-        patience: see ``tolerance``.
-        refreshes: most reference refreshes per fit.
-        refresh_distance: m, and ``refresh_angle``, degrees: how far the fitted track
-            may move from the reference before the reference follows it.
-        margin: m, how far inside the walls the vertex is kept.
-        dtype: float dtype of the likelihood (None: JAX's default float for the
-            gradient method, float64 for MINUIT, whose numerical derivatives need it: in
-            float32 it stops short of its tolerance and HESSE's errors are noise).
-        overdispersion: r of the likelihood's per-sensor counts (variance mu + r mu^2;
-            ``photonflow.likelihood``), dimensionless in [0, 0.5]; 0 is Poisson.
-            ``docs/reconstruction.md`` says what it does to SK muons.
-        hold_indirect: each fit stage holds the indirect light computed at its
-            reference track, to first order in the track's move
-            (``held_indirect_function``; a value and gradient then costs the direct
-            light's alone, ~3x less in SK); False traces the indirect light's rays at
-            every evaluation.
-        score_metric: L-BFGS starts each stage from the inverse of the sum over
-            sensors of the outer products of their likelihood terms' gradients at the
-            start of the charge-only and the first full stage
-            (``_Functions.score_information``; refresh stages reuse the latter's)
-            instead of a scaled identity, and goes on without it once a step along it
-            finds no lower point (``docs/reconstruction.md``, "Fit").
-        threads: threads for independent likelihood calls (the starts' values, the
-            Hessian's gradients; ``photonflow.threads``); None: one per core of the
-            host (with ``--scheduler``, of each worker's host). The results do not
-            depend on it.
-    """
-
-    fits: int = 1
-    restarts: int = 2
-    scan_directions: int = 12
-    max_iterations: int = 200
-    tolerance: float = 1e-2
-    patience: int = 3
-    refreshes: int = 2
-    refresh_distance: float = 0.05
-    refresh_angle: float = 1.0
-    margin: float = 0.0
-    dtype: str | None = None
-    overdispersion: float = 0.0
-    hold_indirect: bool = True
-    score_metric: bool = True
-    threads: int | None = None
-
-    def __post_init__(self):
-        check_overdispersion(self.overdispersion)
 
 
 def reconstruct(detector, params, event, particle: str = "mu-", method: str = "gradient",
@@ -210,8 +147,11 @@ def reconstruct(detector, params, event, particle: str = "mu-", method: str = "g
         for hypothesis in hypotheses:
             results[hypothesis] = _fit_particle(functions, detector, params, data, seed,
                                                 hypothesis, method, settings)
-    fitted = [r for r in results.values() if r.failure is None]
-    best = min(fitted, key=lambda r: r.nll) if fitted else results[hypotheses[0]]
+        fitted = [r for r in results.values() if r.failure is None]
+        best = min(fitted, key=lambda r: r.nll) if fitted else results[hypotheses[0]]
+        if settings.variability_events and best.failure is None:
+            best = with_variability(functions, detector, params, data, event, best,
+                                    config=config, settings=settings)
     ratio = None
     if particle == "auto" and len(fitted) == 2:
         ratio = results["mu-"].nll - results["e-"].nll
@@ -248,11 +188,13 @@ class _Functions:
     sum over sensors of the outer products of their terms' gradients in free
     coordinates, ``score_information(free, frame, reference, data, time_weight)``
     (units of -log L squared per unit of the coordinates squared); the held indirect
-    light of a track, ``hold(track, data, slopes=True)``."""
+    light of a track, ``hold(track, data, slopes=True)``; the scores of many events at
+    one point, ``scores`` (``variability.score_function``)."""
 
     value: object
     value_and_grad: object
     score_information: object
+    scores: object
     hold: object
     total_charge: object
     window: tuple[float, float]
@@ -353,6 +295,7 @@ def _build_functions(detector, dtype, config: TransportConfig,
     return _Functions(value=jax.jit(free_nll),
                       value_and_grad=jax.jit(jax.value_and_grad(coordinate_nll)),
                       score_information=score_information,
+                      scores=score_function(predict, window, threshold, overdispersion),
                       hold=lambda track, data, slopes=True: hold(
                           track, dataclasses.replace(data, held=None), slopes),
                       total_charge=total_charge, window=window,

@@ -19,10 +19,13 @@ class RecoResult:
         time: start time, ns.
         direction: (3,) unit vector.
         energy: kinetic energy, MeV.
-        covariance: (7, 7) inverse of the observed Fisher information (the Hessian of
-            the negative log-likelihood) at the optimum, in the coordinates
+        covariance: (7, 7) covariance of the fitted track in the coordinates
             ``coordinates.LOCAL``: x, y, z (m), t (ns), two angles about the fitted
-            direction (rad), ln E; NaN when the Hessian is not positive definite.
+            direction (rad), ln E. The sandwich H^-1 J H^-1 of ``variability`` (H the
+            Hessian of the negative log-likelihood at the optimum, the observed Fisher
+            information; J the variability of its gradient over events simulated at the
+            fit) where ``RecoSettings.variability_events`` > 0, else H^-1; NaN when the
+            Hessian is not positive definite.
         nll: the minimum negative log-likelihood.
         particle: the particle of the fit ("mu-" or "e-").
         converged: the fit ended at a minimum (a small step and gradient, and a
@@ -34,6 +37,11 @@ class RecoResult:
             minima (positive: the event is more e-like); else None.
         method: "gradient" or "minuit".
         evaluations: likelihood evaluations (value or value and gradient).
+        fisher_covariance: (7, 7) H^-1 in ``LOCAL`` coordinates (the covariance when
+            the model describes the data's fluctuations), or None (not computed).
+        bias: (7,) the fit's bias to first order in ``LOCAL`` coordinates, -H^-1 E[g]
+            over the simulated events (``variability``), or None; where
+            ``RecoSettings.bias_correction``, the reported track is the fit less it.
     """
 
     position: np.ndarray
@@ -50,6 +58,8 @@ class RecoResult:
     log_likelihood_ratio: float | None = None
     method: str = "gradient"
     evaluations: int = 0
+    fisher_covariance: np.ndarray | None = None
+    bias: np.ndarray | None = None
 
     @property
     def errors(self) -> dict[str, float]:
