@@ -1,6 +1,7 @@
 """Reconstruction benchmark (issue 25): ``python benchmarks/reconstruction.py [--events N]
 [--minuit M] [--out FILE.jsonl] [--fits F] [--emission-model spline|siren|tables]
-[--rays-every-evaluation] [--particle mu-|e-] [--energy MEV] [--overdispersion R]``.
+[--rays-every-evaluation] [--particle mu-|e-] [--energy MEV] [--overdispersion R]
+[--variability-events N]``.
 
 SK with the default parameters, 1 GeV muons (or ``--particle`` at ``--energy``) from the
 generator and the sampled mode
@@ -58,6 +59,9 @@ def main() -> None:
     parser.add_argument("--overdispersion", type=float, default=0.0,
                         help="RecoSettings.overdispersion (r, dimensionless; 0: Poisson)")
     parser.add_argument("--energy", type=float, default=1000.0, help="kinetic energy, MeV")
+    parser.add_argument("--variability-events", type=int, default=None,
+                        help="events simulated at each fit for its covariance (default:"
+                             " RecoSettings'; 0: H^-1 alone, no bias correction)")
     args = parser.parse_args()
     import photonflow as pf
     from photonflow.benchmarking import machine_description
@@ -69,6 +73,8 @@ def main() -> None:
                                overdispersion=args.overdispersion)
     if args.fits is not None:
         settings = dataclasses.replace(settings, fits=args.fits)
+    if args.variability_events is not None:
+        settings = dataclasses.replace(settings, variability_events=args.variability_events)
     out = open(args.out, "a") if args.out else None  # noqa: SIM115
     rows = []
     print(f"Machine: {machine_description()}", flush=True)
