@@ -1,7 +1,8 @@
 """Event reconstruction: the vertex, time, direction, energy and particle type of a
 track fitted to an event's hits by maximum likelihood on the expected mode, with a
-MINUIT baseline (``fit``), its seeding (``seeding``), coordinates (``coordinates``)
-and the Cramér-Rao bound at a known track (``bounds``)."""
+MINUIT baseline (``fit``; ``settings``), its seeding (``seeding``), coordinates
+(``coordinates``), the reported covariance and bias from events simulated at the fit
+(``variability``) and the Cramér-Rao bound at a known track (``bounds``)."""
 
 from .bounds import cramer_rao_covariance
 from .coordinates import LOCAL

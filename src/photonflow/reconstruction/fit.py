@@ -20,12 +20,14 @@ The indirect light's rays are fixed by a reference track (``expected``'s
 ``reference``): each fit starts with its start as the reference, and when the fitted
 track has moved from it by more than ``RecoSettings.refresh_distance`` (m) or
 ``refresh_angle`` (degrees), the reference and the direction axis of the coordinates
-move to the fitted track and the fit continues (at most ``refreshes`` times). The
-covariance is the inverse of the Hessian of the negative log-likelihood (the observed
-Fisher information) at the fitted track in ``coordinates.LOCAL``, the Hessian from
-central differences of exact gradients (``minimisers.local_hessian``) for the gradient
-fit and from HESSE (transformed to the same coordinates) for MINUIT. Lengths m, times
-ns, energies MeV.
+move to the fitted track and the fit continues (at most ``refreshes`` times). H^-1,
+the inverse of the Hessian of the negative log-likelihood (the observed Fisher
+information) at the fitted track in ``coordinates.LOCAL``, comes from central
+differences of exact gradients (``minimisers.local_hessian``) for the gradient fit and
+from HESSE (transformed to the same coordinates) for MINUIT. The reported covariance is
+the sandwich H^-1 J H^-1 with J from events simulated at the best fit, and the reported
+track that fit less its first-order bias (``variability``; ``RecoSettings``). Lengths m,
+times ns, energies MeV.
 """
 
 from __future__ import annotations

@@ -68,9 +68,9 @@ def score_function(predict, window, charge_threshold, overdispersion: float):
             pairs = zip(jax.tree.leaves(tangents), jax.tree.leaves(slopes), strict=True)
             return sum(jnp.einsum("j...,...->j", t, s) for t, s in pairs)
 
-        # lax.map, not vmap: jaxlib 0.10.2's CPU programs batched by vmap over 3 or more
-        # events of SK's size return wrong scores for all but the first two (an XLA
-        # fusion of the time mixture's sum over components; docs/performance.md)
+        # lax.map, not vmap: under jaxlib 0.10's YNNPACK fusions, batched sums of SK's
+        # size came back wrong for all events but the first two (the flag of
+        # photonflow.xla_settings fixes them; this loop does not depend on it)
         return jax.lax.map(lambda columns: score(*columns), (hit, charge, time))
 
     return scores
@@ -119,7 +119,6 @@ def score_bias(covariance, scores) -> np.ndarray:
     ``covariance`` the inverse Fisher information, ``scores`` (n, 7) of events simulated
     at the fitted track."""
     return -np.asarray(covariance, np.float64) @ np.mean(np.asarray(scores), axis=0)
-
 
 
 def with_variability(functions, detector, params, data, event, result, *, config,
