@@ -535,31 +535,74 @@ def test_a_tracks_light_scatters_more_than_the_poisson_likelihood_says(
     their median exceeds 1.5 and none falls below 0.5 (measured: 0.95 to 5.0, median
     3.1, on another toy event)."""
     fit = reported_fit
-    assert gradient_fit.fisher_covariance is None and gradient_fit.bias is None
+    assert gradient_fit.bias is None
+    np.testing.assert_array_equal(gradient_fit.fisher_covariance, gradient_fit.covariance)
     np.testing.assert_allclose(fit.fisher_covariance, gradient_fit.covariance, rtol=1e-6)
     ratio = np.diag(fit.covariance) / np.diag(fit.fisher_covariance)
     assert np.median(ratio) > 1.5 and ratio.min() > 0.5, ratio
 
 
-def test_the_bias_correction_moves_the_fit_by_its_bias(toy, sampled_event, gradient_fit,
-                                                       reported_fit):
-    """The reported track is the likelihood's minimum less the first-order bias
-    (LOCAL: the vertex in m, the time in ns, ln E); its nll stays the minimum's."""
+def _uncorrected(toy, event, fit_result, **changes):
+    """``with_variability`` of a fit without the bias correction (16 events)."""
     from photonflow.reconstruction import fit
     from photonflow.reconstruction.variability import with_variability
 
     detector, params = toy
-    bias = reported_fit.bias
     functions = fit.likelihood_functions(detector, jnp.float32, CONFIG)
-    data = fit.event_data(detector, params, sampled_event, jnp.float32, functions)
-    settings = dataclasses.replace(FAST, variability_events=16, bias_correction=False)
-    uncorrected = with_variability(functions, detector, params, data, sampled_event,
-                                   gradient_fit, config=CONFIG, settings=settings)
-    np.testing.assert_allclose(uncorrected.bias, bias)
+    data = fit.event_data(detector, params, event, jnp.float32, functions)
+    settings = dataclasses.replace(FAST, variability_events=16, bias_correction=False,
+                                   **changes)
+    return with_variability(functions, detector, params, data, event, fit_result,
+                            config=CONFIG, settings=settings)
+
+
+def test_the_bias_correction_moves_the_fit_by_its_significant_bias(
+        toy, sampled_event, gradient_fit, reported_fit):
+    """The reported track is the likelihood's minimum less ``correction``: the bias in
+    each coordinate where it exceeds twice its standard error (sandwich sigma / 4), 0
+    elsewhere (LOCAL: the vertex in m, the time in ns, ln E); the covariance adds the
+    correction's variance; the nll stays the minimum's."""
+    uncorrected = _uncorrected(toy, sampled_event, gradient_fit)
+    bias, sandwich = uncorrected.bias, uncorrected.covariance
+    np.testing.assert_allclose(reported_fit.bias, bias)
+    np.testing.assert_array_equal(uncorrected.correction, np.zeros(7))
     np.testing.assert_allclose(uncorrected.position, gradient_fit.position)
-    np.testing.assert_allclose(reported_fit.position, gradient_fit.position - bias[:3],
+    significant = np.abs(bias) > 2.0 * np.sqrt(np.diag(sandwich) / 16)
+    correction = reported_fit.correction
+    np.testing.assert_allclose(correction, np.where(significant, bias, 0.0))
+    np.testing.assert_allclose(reported_fit.position, gradient_fit.position - correction[:3],
                                atol=1e-5)
-    assert reported_fit.time == pytest.approx(gradient_fit.time - bias[3], abs=1e-4)
+    assert reported_fit.time == pytest.approx(gradient_fit.time - correction[3], abs=1e-4)
     assert math.log(reported_fit.energy / gradient_fit.energy) == pytest.approx(
-        -bias[6], abs=1e-5)
+        -correction[6], abs=1e-5)
+    added = np.diag(sandwich) * (1.0 + significant / 16)
+    np.testing.assert_allclose(np.diag(reported_fit.covariance), added, rtol=1e-6)
     assert reported_fit.nll == gradient_fit.nll
+
+
+def test_a_fit_is_never_lost_to_the_simulated_events(toy, sampled_event, gradient_fit,
+                                                      monkeypatch):
+    """Events that cannot be simulated (here: a refused track), or fewer than 8 finite
+    scores, leave the fit with H^-1 as its covariance and no bias; finite rows among
+    non-finite ones are used."""
+    from photonflow.reconstruction import variability
+
+    def refused(*args, **kwargs):
+        raise ConfigError("track.position = [9, 9, 9]: outside the detector")
+
+    monkeypatch.setattr(variability, "sampled_scores", refused)
+    kept = _uncorrected(toy, sampled_event, gradient_fit)
+    np.testing.assert_array_equal(kept.covariance, gradient_fit.covariance)
+    assert kept.bias is None and kept.correction is None
+    rng = np.random.default_rng(2)
+    scores = rng.normal(size=(16, 7)) * 100.0
+    scores[:9, 2] = np.nan  # 7 finite rows: too few
+    monkeypatch.setattr(variability, "sampled_scores", lambda *a, **k: scores)
+    kept = _uncorrected(toy, sampled_event, gradient_fit)
+    assert kept.bias is None
+    np.testing.assert_array_equal(kept.covariance, gradient_fit.covariance)
+    scores[:9, 2] = 1.0
+    scores[:3, 2] = np.nan  # 13 finite rows: used
+    used = _uncorrected(toy, sampled_event, gradient_fit)
+    np.testing.assert_allclose(used.bias, variability.score_bias(gradient_fit.covariance,
+                                                                  scores[3:]))

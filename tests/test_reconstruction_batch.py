@@ -115,11 +115,13 @@ def test_the_reference_job_records_every_event(folder):
     assert kept, table.reco["fisher_covariance"]
     assert np.all(np.isfinite(table.reco["bias"][kept]))
     assert np.all(np.isnan(table.reco["bias"][2]))
+    unconverged = [k for k in kept if not table.reco["converged"][k]]  # never corrected
+    assert np.all(table.reco["correction"][unconverged] == 0.0)
     # a file written before those fields existed reads them as NaN
     old = folder / "without_later_fields.h5"
     shutil.copyfile(folder / "reference.h5", old)
     with h5py.File(old, "r+") as h5:
-        del h5["reco/fisher_covariance"], h5["reco/bias"]
+        del h5["reco/fisher_covariance"], h5["reco/bias"], h5["reco/correction"]
     earlier = read_reco(old)
     assert np.all(np.isnan(earlier.reco["bias"])) and earlier.reco["bias"].shape == (4, 7)
     np.testing.assert_array_equal(earlier.reco["covariance"], table.reco["covariance"])

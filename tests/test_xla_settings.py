@@ -6,11 +6,13 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from photonflow import xla_settings
 
 #: A batched reduction of detector size that jaxlib 0.10's YNNPACK fusions got wrong
-#: (rows from the third on): the arrival-time mixture's cumulative sum of 4 events of
-#: SK's 11,146 sensors and 8 components, against the same function called per event.
+#: (rows from the third on): a sum over the 8 components of an arrival-time mixture, of 4 events of
+#: SK's 11,146 sensors, against the same function called per event.
 _BATCHED_SUM = """
 import json, numpy as np
 import photonflow  # first: its XLA flags are read when JAX starts its backend
@@ -61,5 +63,6 @@ def test_reduction_flag_rules(monkeypatch):
     assert not xla_settings.configure_reduction_fusion()
     monkeypatch.setattr(xla_settings, "jaxlib_version", lambda: xla_settings.YNN_JAXLIB[0])
     monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: True)  # too late
-    assert not xla_settings.configure_reduction_fusion()
+    with pytest.warns(RuntimeWarning, match="import photonflow first"):
+        assert not xla_settings.configure_reduction_fusion()
     assert os.environ["XLA_FLAGS"] == ""

@@ -291,7 +291,7 @@ def reconstruction_step(name: str) -> Step:
         from .io.reco_file import RecoWriter, read_reco, reco_row
         from .reconstruction.batch import reconstruct_or_fail
         from .reconstruction.evaluation import format_summary, summarize
-        from .reconstruction.fit import RecoSettings
+        from .reconstruction.settings import RecoSettings
         from .transport.optics import TransportConfig
         from .viz.reco_plots import plot_reconstruction
 

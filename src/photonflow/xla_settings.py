@@ -40,6 +40,7 @@ Child processes (``simulate --workers``) inherit the environment and with it the
 from __future__ import annotations
 
 import os
+import warnings
 
 #: Environment variable: ``classic`` asks for XLA's classic CPU emitters.
 ENVIRONMENT = "PHOTONFLOW_XLA_CPU_EMITTERS"
@@ -88,9 +89,13 @@ def configure_reduction_fusion() -> bool:
     from jax._src import xla_bridge  # only to ask whether a backend has started
 
     flags = os.environ.get("XLA_FLAGS", "")
-    if ("xla_cpu_experimental_ynn_fusion_type" in flags
-            or xla_bridge.backends_are_initialized()
-            or jaxlib_version() not in YNN_JAXLIB):
+    if "xla_cpu_experimental_ynn_fusion_type" in flags or jaxlib_version() not in YNN_JAXLIB:
+        return False
+    if xla_bridge.backends_are_initialized():
+        warnings.warn(f"JAX started before photonflow was imported, so XLA runs without"
+                      f" {YNN_REDUCE_OFF}: on the CPU, batched sums of detector size can"
+                      f" come out wrong; import photonflow first or set the flag in"
+                      f" XLA_FLAGS (photonflow.xla_settings)", RuntimeWarning, stacklevel=2)
         return False
     os.environ["XLA_FLAGS"] = f"{flags} {YNN_REDUCE_OFF}".strip()
     return True

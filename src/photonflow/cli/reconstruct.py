@@ -15,7 +15,7 @@ import typer
 
 from ..cli_errors import EXIT_INTERRUPTED, MAX_BOUNCES, check_count, max_workers
 from ..interrupts import terminate_as_interrupt
-from ..reconstruction.fit import RecoSettings
+from ..reconstruction.settings import RecoSettings
 from ..transport.optics import TransportConfig, check_config
 from .root import console
 
@@ -120,7 +120,7 @@ def reconstruct(
                           f" [0, {MAX_OVERDISPERSION}]")
     if variability_events != 0:
         check_count("--variability-events", variability_events, MIN_VARIABILITY_EVENTS,
-                    10_000)
+                    10_000, "or 0 for the inverse Fisher information alone")
     if threads is not None:
         check_count("--threads", threads, 1, 256)
     if workers is not None and scheduler is not None:

@@ -71,9 +71,10 @@ RECO_FIELDS = {
     "failure": (STRING_DTYPE, ()),
     "fisher_covariance": (np.dtype(np.float64), (7, 7)),
     "bias": (np.dtype(np.float64), (7,)),
+    "correction": (np.dtype(np.float64), (7,)),
 }
 #: Fields a file written before they existed lacks (read as NaN).
-LATER_FIELDS = ("fisher_covariance", "bias")
+LATER_FIELDS = ("fisher_covariance", "bias", "correction")
 #: Order of the columns of ``/reco/errors`` (``RecoResult.errors``).
 ERROR_NAMES = ("x", "y", "z", "time", "direction_deg", "energy_frac")
 #: name -> (dtype, trailing shape) of the truth copied into ``/truth``.
@@ -103,6 +104,7 @@ def reco_row(index: int, result, truth) -> dict:
         "failure": result.failure or "",
         "fisher_covariance": _or_nan(result.fisher_covariance, (7, 7)),
         "bias": _or_nan(result.bias, (7,)),
+        "correction": _or_nan(result.correction, (7,)),
     }
     nan3 = np.full(3, np.nan)
     row["truth"] = {
@@ -310,8 +312,9 @@ def read_reco(path) -> RecoTable:
 
             def read(group, fields):
                 return {name: (group[name].asstr()[:n] if dtype == STRING_DTYPE
-                               else group[name][:n]) if name in group
-                        else np.full((n, *tail), np.nan)  # a LATER_FIELDS one
+                               else group[name][:n])
+                        if name in group or name not in LATER_FIELDS
+                        else np.full((n, *tail), np.nan)  # an older file's
                         for name, (dtype, tail) in fields.items()}
 
             reco, truth = read(h5["reco"], RECO_FIELDS), read(h5["truth"], TRUTH_COPY)

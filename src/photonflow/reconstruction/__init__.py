@@ -6,8 +6,9 @@ MINUIT baseline (``fit``; ``settings``), its seeding (``seeding``), coordinates
 
 from .bounds import cramer_rao_covariance
 from .coordinates import LOCAL
-from .fit import RecoSettings, reconstruct
+from .fit import reconstruct
 from .result import RecoResult, covariance_errors
+from .settings import RecoSettings
 
 __all__ = ["LOCAL", "RecoResult", "RecoSettings", "covariance_errors",
            "cramer_rao_covariance", "reconstruct"]

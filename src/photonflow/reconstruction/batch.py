@@ -19,8 +19,9 @@ from ..cluster import check_count, dask_client, ordered_results
 from ..errors import ConfigError
 from ..threads import host_cores
 from ..transport.optics import TransportConfig
-from .fit import METHODS, PARTICLES, RecoSettings, reconstruct
+from .fit import METHODS, PARTICLES, reconstruct
 from .result import RecoResult
+from .settings import RecoSettings
 
 #: Largest default block of events per Dask task (a fit takes seconds to minutes).
 MAX_BLOCK_EVENTS = 4

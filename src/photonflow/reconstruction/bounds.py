@@ -22,8 +22,9 @@ import numpy as np
 from ..generator.track import Track
 from ..numerics import default_float_dtype
 from ..transport.optics import TransportConfig
-from .fit import RecoSettings, event_data, event_problem, likelihood_functions
+from .fit import event_data, event_problem, likelihood_functions
 from .minimisers import cast_track, covariance_from_hessian, hessian_at, staged_data
+from .settings import RecoSettings
 
 
 def cramer_rao_covariance(detector, params, event, track: Track, *,

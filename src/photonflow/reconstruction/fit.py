@@ -151,7 +151,7 @@ def reconstruct(detector, params, event, particle: str = "mu-", method: str = "g
                                                 hypothesis, method, settings)
         fitted = [r for r in results.values() if r.failure is None]
         best = min(fitted, key=lambda r: r.nll) if fitted else results[hypotheses[0]]
-        if settings.variability_events and best.failure is None:
+        if best.failure is None:
             best = with_variability(functions, detector, params, data, event, best,
                                     config=config, settings=settings)
     ratio = None

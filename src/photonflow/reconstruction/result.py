@@ -38,10 +38,13 @@ class RecoResult:
         method: "gradient" or "minuit".
         evaluations: likelihood evaluations (value or value and gradient).
         fisher_covariance: (7, 7) H^-1 in ``LOCAL`` coordinates (the covariance when
-            the model describes the data's fluctuations), or None (not computed).
+            the model describes the data's fluctuations), or None (no fit).
         bias: (7,) the fit's bias to first order in ``LOCAL`` coordinates, -H^-1 E[g]
-            over the simulated events (``variability``), or None; where
-            ``RecoSettings.bias_correction``, the reported track is the fit less it.
+            over the simulated events (``variability``), or None (not computed).
+        correction: (7,) what was subtracted from the likelihood's minimum in ``LOCAL``
+            coordinates to give the reported track (``RecoSettings.bias_correction``;
+            0 in each coordinate not corrected), or None (not computed): the minimum
+            is the reported track plus it.
     """
 
     position: np.ndarray
@@ -60,6 +63,7 @@ class RecoResult:
     evaluations: int = 0
     fisher_covariance: np.ndarray | None = None
     bias: np.ndarray | None = None
+    correction: np.ndarray | None = None
 
     @property
     def errors(self) -> dict[str, float]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import numbers
 
 from ..errors import ConfigError
 from ..likelihood import check_overdispersion
@@ -60,8 +61,9 @@ class RecoSettings:
             information H^-1 alone; else at least 8.
         variability_seed: seed (int) of those events, mixed with a checksum of the
             event's hits.
-        bias_correction: report the fit less its first-order bias -H^-1 E[g] over those
-            events (``variability``), not the likelihood's maximum itself.
+        bias_correction: report a converged fit less its first-order bias -H^-1 E[g]
+            over those events, in the coordinates where it is significant
+            (``variability.with_variability``), not the likelihood's maximum itself.
     """
 
     fits: int = 1
@@ -86,7 +88,7 @@ class RecoSettings:
     def __post_init__(self):
         check_overdispersion(self.overdispersion)
         count = self.variability_events
-        if (not isinstance(count, int) or isinstance(count, bool) or count < 0
+        if (not isinstance(count, numbers.Integral) or isinstance(count, bool) or count < 0
                 or 0 < count < MIN_VARIABILITY_EVENTS):
             raise ConfigError(f"variability_events = {count!r}: must be 0 or an integer"
                               f" >= {MIN_VARIABILITY_EVENTS}")

@@ -30,11 +30,13 @@ from ..generator.track import Track
 from ..likelihood import dense_sensor_nll, hit_arrays
 from .coordinates import fit_frame, local_from_track, track_from_local
 from .minimisers import cast_track, staged_data
+from .settings import MIN_VARIABILITY_EVENTS
 
 
 def score_function(predict, window, charge_threshold, overdispersion: float):
     """Jitted ``scores(point, frame, data, hit, charge, time) -> (n, 7)``: the gradients
-    of the full likelihood (dark noise, first-hit times) in ``LOCAL`` coordinates at
+    of the full likelihood (dark noise, first-hit times) in ``LOCAL`` coordinates (per m,
+    per ns, per rad, per unit of ln E) at
     ``point`` (7,) about ``frame``'s axis, of n events' dense hits (``hit``, ``charge``
     p.e., ``time`` ns: (n, N) arrays), with the prediction and the rest of the event's
     ``data`` (``fit._EventData``: params, held indirect light) shared. ``predict``,
@@ -88,7 +90,8 @@ def event_seed(event, seed: int = 0) -> int:
 
 def sampled_scores(functions, detector, params, data, track: Track, frame, *,
                    n_events: int, seed: int, config) -> np.ndarray:
-    """(n_events, 7) scores (gradients of -log L in ``LOCAL`` coordinates, float64) at
+    """(n_events, 7) scores (gradients of -log L in ``LOCAL`` coordinates: per m, per ns,
+    per rad, per unit of ln E; float64) at
     ``track`` of events simulated at ``track`` by the generator and the sampled mode with
     ``params`` and ``config`` (the readout of the fit's likelihood), read with the fit's
     ``data`` (its emission model and held indirect light at ``track``) about ``frame``
@@ -123,41 +126,64 @@ def score_bias(covariance, scores) -> np.ndarray:
 
 def with_variability(functions, detector, params, data, event, result, *, config,
                      settings):
-    """``result`` (a converged or unconverged fit, not a failure) with its covariance the
-    sandwich H^-1 J H^-1 (``fisher_covariance`` keeps H^-1) and ``bias`` the first-order
-    bias -H^-1 E[g] (``LOCAL``), J and E[g] from ``settings.variability_events`` events
-    simulated at the fitted track (``sampled_scores``; seeds from ``event_seed`` of
-    ``event``); with ``settings.bias_correction`` the reported track is the fit less the
-    bias (where that track lies inside the detector and the emission model's energy
-    range; otherwise the fit as it is). ``data`` is the event's (``fit.event_data``),
-    ``config`` the fit's ``TransportConfig``. Unchanged where H^-1 is not finite."""
+    """``result`` (a fit, converged or not; not a failure) with ``fisher_covariance`` its
+    H^-1 and, where ``settings.variability_events`` > 0 and H^-1 is finite, its
+    covariance the sandwich H^-1 J H^-1 and ``bias`` the first-order bias -H^-1 E[g]
+    (``LOCAL``), J and E[g] from that many events simulated at the fitted track
+    (``sampled_scores``; seeds from ``event_seed`` of ``event``).
+
+    With ``settings.bias_correction``, a converged fit is reported less ``correction``:
+    the bias in each coordinate where it exceeds twice the standard error of the mean
+    score's (sqrt of the sandwich's variance over the number of events; elsewhere 0),
+    where the corrected vertex stays ``settings.margin`` (m) inside the detector and its
+    energy (MeV) inside the emission model's range. The covariance then adds the
+    correction's own variance. ``data`` is the event's (``fit.event_data``), ``config``
+    the fit's ``TransportConfig``. A fit is never lost to this step: where the events
+    cannot be simulated or fewer than ``MIN_VARIABILITY_EVENTS`` give finite scores,
+    H^-1 is reported and ``bias`` stays None."""
     covariance = np.asarray(result.covariance, np.float64)
-    if not np.all(np.isfinite(covariance)):
-        return dataclasses.replace(result, fisher_covariance=covariance)
+    result = dataclasses.replace(result, fisher_covariance=covariance)
+    if not settings.variability_events or not np.all(np.isfinite(covariance)):
+        return result
     dtype = data.charge.dtype
     model = functions.emission(result.particle)
     track = cast_track(Track(result.particle, result.position, result.direction,
                              result.energy, result.time), dtype)
-    data = staged_data(functions, dataclasses.replace(data, emission=model), track,
-                       settings)
     frame = fit_frame(detector.shape, track.direction, model.energy_range, result.particle,
                       0.0, dtype)
-    scores = sampled_scores(functions, detector, params, data, track, frame,
-                            n_events=settings.variability_events,
-                            seed=event_seed(event, settings.variability_seed),
-                            config=config)
-    bias = score_bias(covariance, scores)
-    result = dataclasses.replace(result, covariance=sandwich_covariance(covariance, scores),
-                                 fisher_covariance=covariance, bias=bias)
-    if not settings.bias_correction or not np.all(np.isfinite(bias)):
+    try:
+        data = staged_data(functions, dataclasses.replace(data, emission=model), track,
+                           settings)
+        scores = sampled_scores(functions, detector, params, data, track, frame,
+                                n_events=settings.variability_events,
+                                seed=event_seed(event, settings.variability_seed),
+                                config=config)
+    except Exception:  # noqa: BLE001 - e.g. a vertex rounded onto the wall: keep the fit
         return result
-    local = np.asarray(local_from_track(track, dtype), np.float64) - bias
+    scores = scores[np.all(np.isfinite(scores), axis=1)]
+    if len(scores) < MIN_VARIABILITY_EVENTS:
+        return result
+    bias = score_bias(covariance, scores)
+    sandwich = sandwich_covariance(covariance, scores)
+    result = dataclasses.replace(result, covariance=sandwich, bias=bias,
+                                 correction=np.zeros_like(bias))
+    if not settings.bias_correction or not result.converged:
+        return result
+    mean_error = np.sqrt(np.diag(sandwich) / len(scores))
+    correction = np.where(np.abs(bias) > 2.0 * mean_error, bias, 0.0)
+    if not np.any(correction):
+        return result
+    local = np.asarray(local_from_track(track, dtype), np.float64) - correction
     corrected = track_from_local(frame, jnp.asarray(local, dtype))
     position = np.asarray(corrected.position, np.float64)
     energy = float(corrected.energy)
     low, high = (float(x) for x in model.energy_range)
-    if float(detector.shape.distance_to_wall(position)) <= 0 or not low < energy < high:
+    if (float(detector.shape.distance_to_wall(position)) <= settings.margin
+            or not low < energy < high):
         return result
-    return dataclasses.replace(result, position=position, time=float(corrected.time),
-                               direction=np.asarray(corrected.direction, np.float64),
-                               energy=energy)
+    applied = np.diag((correction != 0).astype(np.float64))
+    return dataclasses.replace(
+        result, position=position, time=float(corrected.time),
+        direction=np.asarray(corrected.direction, np.float64), energy=energy,
+        covariance=sandwich + applied @ sandwich @ applied / len(scores),
+        correction=correction)
