@@ -303,6 +303,8 @@ def reconstruction_step(name: str) -> Step:
             params = load_params(calibration) if calibration.exists() else events.params
             run_settings = {"events": "track_events.h5", "particle": "simulated",
                             "method": "gradient", "fits": DEMO_RECO_FITS,
+                            "variability_events": settings.variability_events,
+                            "bias_correction": settings.bias_correction,
                             "params": calibration.name if calibration.exists() else
                             "event file"}
             with RecoWriter(path, events.detector, run_settings, mode="recreate") as writer:
