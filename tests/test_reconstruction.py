@@ -591,7 +591,8 @@ def test_a_fit_is_never_lost_to_the_simulated_events(toy, sampled_event, gradien
         raise ConfigError("track.position = [9, 9, 9]: outside the detector")
 
     monkeypatch.setattr(variability, "sampled_scores", refused)
-    kept = _uncorrected(toy, sampled_event, gradient_fit)
+    with pytest.warns(RuntimeWarning, match="outside the detector"):
+        kept = _uncorrected(toy, sampled_event, gradient_fit)
     np.testing.assert_array_equal(kept.covariance, gradient_fit.covariance)
     assert kept.bias is None and kept.correction is None
     rng = np.random.default_rng(2)

@@ -20,6 +20,7 @@ without refitting); their mean score gives the fit's bias to the same order,
 from __future__ import annotations
 
 import dataclasses
+import warnings
 import zlib
 
 import jax
@@ -139,8 +140,9 @@ def with_variability(functions, detector, params, data, event, result, *, config
     energy (MeV) inside the emission model's range. The covariance then adds the
     correction's own variance. ``data`` is the event's (``fit.event_data``), ``config``
     the fit's ``TransportConfig``. A fit is never lost to this step: where the events
-    cannot be simulated or fewer than ``MIN_VARIABILITY_EVENTS`` give finite scores,
-    H^-1 is reported and ``bias`` stays None."""
+    cannot be simulated (a ``RuntimeWarning`` says why) or fewer than
+    ``MIN_VARIABILITY_EVENTS`` give finite scores, H^-1 is reported and ``bias`` stays
+    None."""
     covariance = np.asarray(result.covariance, np.float64)
     result = dataclasses.replace(result, fisher_covariance=covariance)
     if not settings.variability_events or not np.all(np.isfinite(covariance)):
@@ -158,8 +160,10 @@ def with_variability(functions, detector, params, data, event, result, *, config
                                 n_events=settings.variability_events,
                                 seed=event_seed(event, settings.variability_seed),
                                 config=config)
-    except Exception:  # noqa: BLE001 - e.g. a vertex rounded onto the wall: keep the fit
-        return result
+    except Exception as error:  # noqa: BLE001 - e.g. a vertex rounded onto the wall
+        warnings.warn(f"no simulated events at the fit ({error}); its covariance is"
+                      f" H^-1", RuntimeWarning, stacklevel=2)
+        return result  # the fit is kept
     scores = scores[np.all(np.isfinite(scores), axis=1)]
     if len(scores) < MIN_VARIABILITY_EVENTS:
         return result
