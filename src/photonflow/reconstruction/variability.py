@@ -29,6 +29,7 @@ import numpy as np
 
 from ..generator.track import Track
 from ..likelihood import dense_sensor_nll, hit_arrays
+from ..transport.pseudo_data import sample_events
 from .coordinates import fit_frame, local_from_track, track_from_local
 from .minimisers import cast_track, staged_data
 from .settings import MIN_VARIABILITY_EVENTS
@@ -71,10 +72,7 @@ def score_function(predict, window, charge_threshold, overdispersion: float):
             pairs = zip(jax.tree.leaves(tangents), jax.tree.leaves(slopes), strict=True)
             return sum(jnp.einsum("j...,...->j", t, s) for t, s in pairs)
 
-        # lax.map, not vmap: under jaxlib 0.10's YNNPACK fusions, batched sums of SK's
-        # size came back wrong for all events but the first two (the flag of
-        # photonflow.xla_settings fixes them; this loop does not depend on it)
-        return jax.lax.map(lambda columns: score(*columns), (hit, charge, time))
+        return jax.vmap(score)(hit, charge, time)
 
     return scores
 
@@ -97,8 +95,6 @@ def sampled_scores(functions, detector, params, data, track: Track, frame, *,
     ``params`` and ``config`` (the readout of the fit's likelihood), read with the fit's
     ``data`` (its emission model and held indirect light at ``track``) about ``frame``
     (``coordinates.fit_frame`` at the track's direction)."""
-    from ..transport.pseudo_data import sample_events
-
     dtype = data.charge.dtype
     with jax.enable_x64(False):  # the sampled mode's own precision, as for any event
         events = list(sample_events(detector, params, track, seed, n_events,
