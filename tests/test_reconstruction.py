@@ -23,7 +23,13 @@ from photonflow.reconstruction.coordinates import (
     local_from_track,
     track_from_free,
 )
-from photonflow.reconstruction.minimisers import cast_track
+from photonflow.reconstruction.minimisers import (
+    CHARGE_ONLY,
+    FROZEN,
+    SLOPED,
+    cast_track,
+    fit_stages,
+)
 
 CONFIG = pf.TransportConfig(n_bounces=0)
 #: One fit from the likeliest of the starts (the seeded direction, its opposite and 2
@@ -429,6 +435,34 @@ def test_a_fit_that_did_not_converge_is_followed_by_the_next_start(toy, sampled_
     assert result.converged == (restarts > 0)
     np.testing.assert_array_equal(result.position, starts[-1].position)
     assert result.nll == 100.0 - len(starts)
+
+
+def test_the_fit_settles_with_frozen_light_while_it_moves():
+    """The stages: charge-only, then frozen-light stages while the track moves (at most
+    ``frozen_stages``); without frozen stages, or without held light, the stages with
+    slopes (at most ``refreshes`` + 1)."""
+
+    def stages(settings, moves, charge_stage=True):
+        schedule = fit_stages(settings, charge_stage)
+        taken = [next(schedule)]
+        for moved in moves:
+            try:
+                taken.append(schedule.send(moved))
+            except StopIteration:
+                break
+        return taken
+
+    settings = RecoSettings(frozen_stages=3, refreshes=1)
+    assert stages(settings, [True] * 10) == [CHARGE_ONLY] + [FROZEN] * 3
+    assert stages(settings, [True, True, False, True]) == [CHARGE_ONLY, FROZEN, FROZEN]
+    assert stages(settings, [False, False]) == [CHARGE_ONLY, FROZEN]  # always one full
+    assert stages(settings, [True] * 10, charge_stage=False) == [FROZEN] * 3
+    sloped = (False, True)  # the charge-only stage with the held light's slopes
+    assert stages(RecoSettings(frozen_stages=0, refreshes=1), [True] * 10) == [
+        sloped, SLOPED, SLOPED]
+    assert stages(RecoSettings(hold_indirect=False), [True] * 10) == [sloped] + [SLOPED] * 3
+    with pytest.raises(ConfigError, match="frozen_stages"):
+        RecoSettings(frozen_stages=-1)
 
 
 @pytest.mark.parametrize("value", [-0.01, 0.51, float("nan")])

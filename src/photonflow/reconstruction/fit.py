@@ -20,7 +20,8 @@ The indirect light's rays are fixed by a reference track (``expected``'s
 ``reference``): each fit starts with its start as the reference, and when the fitted
 track has moved from it by more than ``RecoSettings.refresh_distance`` (m) or
 ``refresh_angle`` (degrees), the reference and the direction axis of the coordinates
-move to the fitted track and the fit continues (at most ``refreshes`` times). H^-1,
+move to the fitted track and the fit continues; its stages hold the indirect light
+frozen at their reference (``minimisers.fit_stages``). H^-1,
 the inverse of the Hessian of the negative log-likelihood (the observed Fisher
 information) at the fitted track in ``coordinates.LOCAL``, comes from central
 differences of exact gradients (``minimisers.local_hessian``) for the gradient fit and

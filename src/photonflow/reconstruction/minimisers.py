@@ -13,6 +13,7 @@ Hessian). Lengths m, times ns, energies MeV.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 
 import jax
@@ -46,6 +47,38 @@ def _moved(a: Track, b: Track, settings) -> bool:
         math.degrees(math.acos(cosine)) > settings.refresh_angle
 
 
+#: A fit stage's likelihood and held light: (with the first-hit times, with the held
+#: light's slopes).
+CHARGE_ONLY, FROZEN, SLOPED = (False, False), (True, False), (True, True)
+
+
+def fit_stages(settings, charge_stage: bool = True):
+    """The stages of one fit, each a ``(use_time, slopes)`` pair: a generator that is
+    sent, after each stage, whether its fitted track moved from the stage's reference by
+    more than the refresh thresholds (``_moved``).
+
+    - ``CHARGE_ONLY`` (if ``charge_stage``): the charge-only likelihood, whose landscape
+      is smoother;
+    - with ``settings.frozen_stages`` and ``hold_indirect``: ``FROZEN`` stages, at most
+      that many, while the track moves: the indirect light held without its slopes (its
+      pattern frozen at the reference, scaled with the direct light's total, shifted
+      with the track's time). The slopes' noise (the rays' weights) is a false
+      curvature about the reference that holds a fit near it, so that where a fit ends
+      depended on its path (``docs/reconstruction.md``, "Fit"). Refreshed, the frozen
+      stages settle where the reference and the fit agree; the covariance's Hessian and
+      the polish then use the held light with its slopes, at the fit;
+    - otherwise ``SLOPED`` stages, at most ``settings.refreshes`` + 1, while the track
+      moves (with rays at every evaluation, ``hold_indirect`` False, the slopes are the
+      rays' own)."""
+    frozen = settings.frozen_stages if settings.hold_indirect else 0
+    if charge_stage:
+        yield CHARGE_ONLY if frozen else (False, True)
+    stage, count = (FROZEN, frozen) if frozen else (SLOPED, settings.refreshes + 1)
+    for _ in range(count):
+        if not (yield stage):
+            break
+
+
 def _concrete(track: Track) -> Track:
     """A checked, float64 copy of a traced or device track."""
     return Track(track.particle, np.asarray(track.position, np.float64),
@@ -65,13 +98,14 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
     reference, iterations, evaluations, converged = start, 0, 0, False
     scale = None  # the last stage's inverse curvature: the first step's of the next
     stage_metric = None  # the inverse information at a stage's start (``score_metric``)
-    for stage in range(settings.refreshes + 2):
-        use_time = stage > 0  # a charge-only stage first: its landscape is smoother
+    schedule = fit_stages(settings)
+    use_time, slopes = next(schedule)
+    for stage in itertools.count():
         frame = fit_frame(detector.shape, reference.direction, model.energy_range,
                           start.particle, settings.margin, dtype)
         fixed = cast_track(reference, dtype)
         weight = jnp.asarray(float(use_time), dtype)
-        staged = staged_data(functions, data, fixed, settings)
+        staged = staged_data(functions, data, fixed, settings, slopes)
 
         def value_and_grad(x, frame=frame, fixed=fixed, weight=weight, staged=staged):
             value, gradient = functions.value_and_grad(jnp.asarray(x, dtype), FREE, frame,
@@ -130,11 +164,15 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
         fitted = _concrete(track_from_free(frame, free))
         moved = _moved(reference, fitted, settings)
         reference = fitted
-        if use_time and not moved:
+        try:
+            use_time, slopes = schedule.send(moved)
+        except StopIteration:
             break
-    # the last stage's held light: held at that stage's reference, within the refresh
-    # thresholds of the fitted track unless the refreshes ran out
-    data = staged
+    # the light held at the fitted track with its slopes (after frozen stages), or the
+    # last stage's (held at its reference, within the refresh thresholds of the fitted
+    # track unless the refreshes ran out)
+    data = staged if slopes else staged_data(functions, data, cast_track(reference, dtype),
+                                             settings)
     hessian, local_frame, centre = hessian_at(functions, detector, model, data, reference,
                                               settings.threads)
     evaluations += 1
@@ -364,11 +402,13 @@ def minimise_minuit(functions, detector, model, data, start, settings) -> RecoRe
     dtype = data.charge.dtype
     reference, iterations, evaluations, converged = start, 0, 0, False
     minuit = None
-    for _ in range(settings.refreshes + 1):
+    schedule = fit_stages(settings, charge_stage=False)
+    _, slopes = next(schedule)
+    for _ in itertools.count():
         frame = fit_frame(detector.shape, reference.direction, model.energy_range,
                           start.particle, settings.margin, dtype)
         fixed = cast_track(reference, dtype)
-        staged = staged_data(functions, data, fixed, settings)
+        staged = staged_data(functions, data, fixed, settings, slopes)
 
         def objective(x, frame=frame, fixed=fixed, staged=staged):
             return float(functions.value(jnp.asarray(x, dtype), frame, fixed, staged))
@@ -387,8 +427,21 @@ def minimise_minuit(functions, detector, model, data, start, settings) -> RecoRe
                                                               dtype)))
         moved = _moved(reference, fitted, settings)
         reference = fitted
-        if not moved:
+        try:
+            _, slopes = schedule.send(moved)
+        except StopIteration:
             break
+    if not slopes:  # HESSE with the light held at the fit with its slopes
+        fixed = cast_track(reference, dtype)
+        staged = staged_data(functions, data, fixed, settings)
+
+        def held(x, frame=frame, fixed=fixed, staged=staged):
+            return float(functions.value(jnp.asarray(x, dtype), frame, fixed, staged))
+
+        steps = np.asarray(minuit.errors)
+        minuit = Minuit(held, np.asarray(minuit.values), name=FREE_NAMES)
+        minuit.errordef = Minuit.LIKELIHOOD
+        minuit.errors = steps
     minuit.hesse()
     evaluations += minuit.nfcn
     covariance = _local_covariance(frame, np.asarray(minuit.values), reference,

@@ -30,9 +30,12 @@ class RecoSettings:
             likelihood far below one standard deviation's 0.5, and above float32's
             resolution of an SK event's ~3e4).
         patience: see ``tolerance``.
-        refreshes: most reference refreshes per fit.
+        frozen_stages: most fit stages with the indirect light held without its slopes,
+            refreshed while the track moves, before the stages with them
+            (``minimisers.fit_stages``); 0: none.
+        refreshes: most reference refreshes of the stages with the held light's slopes.
         refresh_distance: m, and ``refresh_angle``, degrees: how far the fitted track
-            may move from the reference before the reference follows it.
+            may move from a stage's reference before the reference follows it.
         margin: m, how far inside the walls the vertex is kept.
         dtype: float dtype of the likelihood (None: JAX's default float for the
             gradient method, float64 for MINUIT, whose numerical derivatives need it: in
@@ -72,9 +75,10 @@ class RecoSettings:
     max_iterations: int = 200
     tolerance: float = 1e-2
     patience: int = 3
+    frozen_stages: int = 10
     refreshes: int = 2
-    refresh_distance: float = 0.05
-    refresh_angle: float = 1.0
+    refresh_distance: float = 0.01
+    refresh_angle: float = 0.2
     margin: float = 0.0
     dtype: str | None = None
     overdispersion: float = 0.0
@@ -87,6 +91,11 @@ class RecoSettings:
 
     def __post_init__(self):
         check_overdispersion(self.overdispersion)
+        for name in ("frozen_stages", "refreshes"):
+            value = getattr(self, name)
+            if (not isinstance(value, numbers.Integral) or isinstance(value, bool)
+                    or value < 0):
+                raise ConfigError(f"{name} = {value!r}: must be an integer >= 0")
         count = self.variability_events
         if (not isinstance(count, numbers.Integral) or isinstance(count, bool) or count < 0
                 or 0 < count < MIN_VARIABILITY_EVENTS):
