@@ -465,6 +465,37 @@ def test_the_fit_settles_with_frozen_light_while_it_moves():
         RecoSettings(frozen_stages=-1)
 
 
+def test_the_fit_holds_the_light_frozen_from_its_stages_to_its_scores(toy, sampled_event,
+                                                                     monkeypatch):
+    """With frozen stages, every hold of a fit (its stages, Hessian, polish, MINUIT's
+    HESSE, the simulated events' scores) is without slopes; with ``frozen_stages=0``,
+    every one is with them."""
+    from photonflow.reconstruction import fit
+
+    detector, params = toy
+    real = fit.likelihood_functions
+    slopes = []
+
+    def recording(*args, **kwargs):
+        functions = real(*args, **kwargs)
+
+        def hold(track, data, with_slopes=True):
+            slopes.append(with_slopes)
+            return functions.hold(track, data, with_slopes)
+
+        return dataclasses.replace(functions, hold=hold)
+
+    monkeypatch.setattr(fit, "likelihood_functions", recording)
+    for method, frozen, events in [("gradient", 10, 16), ("minuit", 10, 0),
+                                   ("gradient", 0, 0)]:
+        slopes.clear()
+        settings = RecoSettings(frozen_stages=frozen, variability_events=events)
+        result = reconstruct(detector, params, sampled_event, "mu-", method, config=CONFIG,
+                             settings=settings, start=TRUTH)
+        assert result.converged and (result.bias is not None) == (events > 0)
+        assert len(slopes) >= 2 and set(slopes) == {frozen == 0}, (method, frozen)
+
+
 @pytest.mark.parametrize("value", [-0.01, 0.51, float("nan")])
 def test_settings_refuse_an_overdispersion_outside_its_range(value):
     with pytest.raises(ConfigError, match="overdispersion"):

@@ -5,8 +5,8 @@ rays of each of them (no hold: the rays traced at every evaluation).
 
     python examples/reconstruction/sk_mu_e.py --events 300 --out-dir runs/sk_mu_e_300
     python studies/reconstruction/sk_reference_path.py runs/sk_mu_e_300/events.h5 \\
-        out.jsonl --event 1 --events 12 [--from-truth] [--frozen-stages 0]
-        [--refreshes 2] [--refresh-distance 0.05] [--refresh-angle 1.0]
+        out.jsonl --event 1 --events 12 [--from-truth]
+        [--frozen-stages 0 --refresh-distance 0.05 --refresh-angle 1.0]  # the old fit
 
 One JSON row per simulated event: for each fit its -log L as reported, whether it
 converged, its iterations, and its errors along and across the true track (cm), in

@@ -52,6 +52,13 @@ def _moved(a: Track, b: Track, settings) -> bool:
 CHARGE_ONLY, FROZEN, SLOPED = (False, False), (True, False), (True, True)
 
 
+def frozen_light(settings) -> bool:
+    """Whether a fit with ``settings`` holds the indirect light frozen: without its
+    slopes, in its stages, its Hessian, its polish and the scores of its simulated
+    events (``frozen_stages`` > 0 with ``hold_indirect``; ``fit_stages``)."""
+    return bool(settings.hold_indirect and settings.frozen_stages)
+
+
 def fit_stages(settings, charge_stage: bool = True):
     """The stages of one fit, each a ``(use_time, slopes)`` pair: a generator that is
     sent, after each stage, whether its fitted track moved from the stage's reference by
@@ -59,21 +66,22 @@ def fit_stages(settings, charge_stage: bool = True):
 
     - ``CHARGE_ONLY`` (if ``charge_stage``): the charge-only likelihood, whose landscape
       is smoother;
-    - with ``settings.frozen_stages`` and ``hold_indirect``: ``FROZEN`` stages, at most
-      that many, while the track moves: the indirect light held without its slopes (its
-      pattern frozen at the reference, scaled with the direct light's total, shifted
-      with the track's time). The slopes' noise (the rays' weights) is a false
-      curvature about the reference that holds a fit near it, so that where a fit ends
+    - with ``frozen_light(settings)``: ``FROZEN`` stages, at most ``frozen_stages``,
+      while the track moves. The indirect light is held without its slopes: its pattern
+      frozen at the reference (its charge following the direct light's total, its times
+      the track's start time). The slopes' noise (from the rays' weights) is a false
+      curvature about the reference that held a fit near it, so that where a fit ended
       depended on its path (``docs/reconstruction.md``, "Fit"). Refreshed, the frozen
-      stages settle where the reference and the fit agree; the covariance's Hessian and
-      the polish then use the held light with its slopes, at the fit;
+      stages settle where the reference and the fit agree, and the Hessian, the polish
+      and the scores are those of this likelihood at the fit;
     - otherwise ``SLOPED`` stages, at most ``settings.refreshes`` + 1, while the track
       moves (with rays at every evaluation, ``hold_indirect`` False, the slopes are the
       rays' own)."""
-    frozen = settings.frozen_stages if settings.hold_indirect else 0
+    frozen = frozen_light(settings)
     if charge_stage:
         yield CHARGE_ONLY if frozen else (False, True)
-    stage, count = (FROZEN, frozen) if frozen else (SLOPED, settings.refreshes + 1)
+    stage, count = (FROZEN, settings.frozen_stages) if frozen else (
+        SLOPED, settings.refreshes + 1)
     for _ in range(count):
         if not (yield stage):
             break
@@ -168,11 +176,9 @@ def minimise_gradient(functions, detector, model, data, start, settings) -> Reco
             use_time, slopes = schedule.send(moved)
         except StopIteration:
             break
-    # the light held at the fitted track with its slopes (after frozen stages), or the
-    # last stage's (held at its reference, within the refresh thresholds of the fitted
-    # track unless the refreshes ran out)
-    data = staged if slopes else staged_data(functions, data, cast_track(reference, dtype),
-                                             settings)
+    # the last stage's held light: held at that stage's reference, within the refresh
+    # thresholds of the fitted track unless the stages ran out
+    data = staged
     hessian, local_frame, centre = hessian_at(functions, detector, model, data, reference,
                                               settings.threads)
     evaluations += 1
@@ -214,12 +220,15 @@ def _inverse_metric(information: np.ndarray) -> np.ndarray | None:
     return np.linalg.inv(ridge)
 
 
-def staged_data(functions, data, track: Track, settings, slopes: bool = True):
+def staged_data(functions, data, track: Track, settings, slopes: bool | None = None):
     """``data`` for a fit stage about ``track`` (the reference): with the indirect light
-    held at it (with its ``slopes``, or without) where ``settings.hold_indirect``, else
-    as it is (rays from the reference at every evaluation)."""
+    held at it (with its ``slopes``, or without; None: without where
+    ``frozen_light(settings)``) where ``settings.hold_indirect``, else as it is (rays
+    from the reference at every evaluation)."""
     if not settings.hold_indirect:
         return data
+    if slopes is None:
+        slopes = not frozen_light(settings)
     return dataclasses.replace(data, held=functions.hold(track, data, slopes))
 
 
@@ -431,19 +440,9 @@ def minimise_minuit(functions, detector, model, data, start, settings) -> RecoRe
             _, slopes = schedule.send(moved)
         except StopIteration:
             break
-    if not slopes:  # HESSE with the light held at the fit with its slopes
-        fixed = cast_track(reference, dtype)
-        staged = staged_data(functions, data, fixed, settings)
-
-        def held(x, frame=frame, fixed=fixed, staged=staged):
-            return float(functions.value(jnp.asarray(x, dtype), frame, fixed, staged))
-
-        steps = np.asarray(minuit.errors)
-        minuit = Minuit(held, np.asarray(minuit.values), name=FREE_NAMES)
-        minuit.errordef = Minuit.LIKELIHOOD
-        minuit.errors = steps
+    before = minuit.nfcn  # a running count: MIGRAD's calls are counted above
     minuit.hesse()
-    evaluations += minuit.nfcn
+    evaluations += minuit.nfcn - before
     covariance = _local_covariance(frame, np.asarray(minuit.values), reference,
                                    np.asarray(minuit.covariance, np.float64), dtype)
     converged = converged and bool(minuit.fmin.has_posdef_covar)

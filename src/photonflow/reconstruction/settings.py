@@ -30,10 +30,14 @@ class RecoSettings:
             likelihood far below one standard deviation's 0.5, and above float32's
             resolution of an SK event's ~3e4).
         patience: see ``tolerance``.
-        frozen_stages: most fit stages with the indirect light held without its slopes,
-            refreshed while the track moves, before the stages with them
-            (``minimisers.fit_stages``); 0: none.
-        refreshes: most reference refreshes of the stages with the held light's slopes.
+        frozen_stages: most full-likelihood stages of a fit, refreshed while the track
+            moves, with the indirect light held frozen: without its slopes, in the
+            stages (the charge-only one too), the Hessian, the polish and the scores
+            (``minimisers.fit_stages``); ignored without ``hold_indirect``. 0: the
+            held light's slopes everywhere and at most ``refreshes`` refreshes (the fit
+            before frozen stages, with ``refresh_distance=0.05, refresh_angle=1.0``).
+        refreshes: most reference refreshes with the held light's slopes (unused with
+            frozen stages).
         refresh_distance: m, and ``refresh_angle``, degrees: how far the fitted track
             may move from a stage's reference before the reference follows it.
         margin: m, how far inside the walls the vertex is kept.
@@ -44,7 +48,8 @@ class RecoSettings:
             ``photonflow.likelihood``), dimensionless in [0, 0.5]; 0 is Poisson.
             ``docs/reconstruction.md`` says what it does to SK muons.
         hold_indirect: each fit stage holds the indirect light computed at its
-            reference track, to first order in the track's move
+            reference track, frozen (``frozen_stages``) or to first order in the
+            track's move
             (``held_indirect_function``; a value and gradient then costs the direct
             light's alone, ~3x less in SK); False traces the indirect light's rays at
             every evaluation.
