@@ -5,8 +5,8 @@ one-line result and the files it wrote; ``run_demo`` runs them in order with a r
 status display. The steps show the detector presets, draw the sensor layouts of the
 default cylinder (SK) and sphere (JUNO), simulate a calibration run in SK with its
 event display, simulate a muon and an electron in SK and draw them against their
-expected-mode predictions, calibrate SK's optics, and reconstruct those tracks with the
-calibrated optics.
+expected-mode predictions, calibrate SK's optics, and reconstruct those tracks and a
+dozen more muons and electrons each with the calibrated optics.
 """
 
 from __future__ import annotations
@@ -273,16 +273,49 @@ def optics_calibration_step(name: str) -> Step:
 
 
 #: Settings of the demo's reconstruction: one fit per event from the likeliest start
-#: (minutes per event on a laptop CPU; docs/reconstruction.md).
+#: (docs/reconstruction.md), the direct light from the emission model's moment tables.
 DEMO_RECO_FITS = 1
+DEMO_EMISSION_MODEL = "tables"
+#: The sample reconstructed besides the two displayed tracks: this many events of each
+#: (particle, kinetic energy MeV), vertices at least 2 m inside the walls, isotropic,
+#: simulated with ``DEMO_SAMPLE_SEED``.
+DEMO_SAMPLE_EVENTS = 12
+DEMO_SAMPLE = (("mu-", 1000.0), ("e-", 500.0))
+DEMO_SAMPLE_SEED = 23
+
+
+def _reco_events(name: str, context: DemoContext) -> Path:
+    """Write ``<out_dir>/reco_events.h5``: the displayed tracks' events
+    (``track_events.h5``) and ``DEMO_SAMPLE_EVENTS`` more of each ``DEMO_SAMPLE``
+    particle, simulated with the optics ``CALIBRATION_TRUTH``; return its path."""
+    import itertools
+
+    from .config import load_setup
+    from .io import read_events, write_events
+    from .transport.pseudo_data import sample_events
+    from .transport.tracks import random_tracks
+
+    setup = load_setup(name)
+    truth = setup.params.replace(**CALIBRATION_TRUTH)
+    tracks = [track for k, (particle, energy) in enumerate(DEMO_SAMPLE)
+              for track in random_tracks(setup.detector, particle, energy,
+                                         DEMO_SAMPLE_SEED + k, DEMO_SAMPLE_EVENTS)]
+    with read_events(context.out_dir / "track_events.h5") as shown:
+        displayed = [shown[index] for index in range(len(shown))]
+    path = context.out_dir / "reco_events.h5"
+    sample = sample_events(setup.detector, truth, tracks, DEMO_SAMPLE_SEED, len(tracks))
+    write_events(path, itertools.chain(displayed, sample), setup.detector, truth,
+                 mode="recreate")
+    return path
 
 
 def reconstruction_step(name: str) -> Step:
-    """Reconstruct the events of ``<out_dir>/track_events.h5`` with the optics of
+    """Simulate the reconstruction sample (``_reco_events``: the displayed tracks and
+    ``DEMO_SAMPLE_EVENTS`` muons and electrons) and reconstruct it with the optics of
     ``<out_dir>/calibration.json`` (the calibration step's; the preset's defaults where
-    it is missing), each under the hypothesis of its simulated particle (``photonflow
-    reconstruct --particle auto`` fits both), write ``reco.h5``, print the resolution
-    table and draw the error and pull pictures (``reco_errors.png``,
+    it is missing), each event under the hypothesis of its simulated particle
+    (``photonflow reconstruct --particle auto`` fits both), write ``reco.h5``, print
+    the resolution table and draw the error and pull pictures (``reco_errors.png``,
     ``reco_pulls.png``)."""
 
     def run(context: DemoContext) -> StepResult:
@@ -298,11 +331,13 @@ def reconstruction_step(name: str) -> Step:
         calibration = context.out_dir / "calibration.json"
         path = context.out_dir / "reco.h5"
         settings = RecoSettings(fits=DEMO_RECO_FITS)
-        config = TransportConfig(n_rays=1024)
-        with read_events(context.out_dir / "track_events.h5") as events:
+        config = TransportConfig(n_rays=1024, emission_model=DEMO_EMISSION_MODEL)
+        events_path = _reco_events(name, context)
+        with read_events(events_path) as events:
             params = load_params(calibration) if calibration.exists() else events.params
-            run_settings = {"events": "track_events.h5", "particle": "simulated",
+            run_settings = {"events": events_path.name, "particle": "simulated",
                             "method": "gradient", "fits": DEMO_RECO_FITS,
+                            "emission_model": DEMO_EMISSION_MODEL,
                             "variability_events": settings.variability_events,
                             "bias_correction": settings.bias_correction,
                             "params": calibration.name if calibration.exists() else
@@ -310,8 +345,9 @@ def reconstruction_step(name: str) -> Step:
             with RecoWriter(path, events.detector, run_settings, mode="recreate") as writer:
                 for index in range(len(events)):
                     event = events[index]
-                    context.console.print(f"  reconstructing event {index}"
-                                          f" ({event.truth.particle}) ...", highlight=False)
+                    context.console.print(f"  reconstructing event {index + 1} of"
+                                          f" {len(events)} ({event.truth.particle}) ...",
+                                          highlight=False)
                     result = reconstruct_or_fail(events.detector, params, event,
                                                  event.truth.particle, "gradient", config,
                                                  settings)
@@ -325,7 +361,7 @@ def reconstruction_step(name: str) -> Step:
             f" {100 * entry['energy_68_frac']:.1f} %" for p, entry in
             summary["particles"].items() if entry["vertex_68_cm"] is not None)
         return StepResult(f"{len(table)} events with the calibrated optics (fit - truth:"
-                          f" {errors}); results in {path}", (path, *pictures))
+                          f" {errors}); results in {path}", (events_path, path, *pictures))
 
     return Step(f"reconstruction in {name}", run)
 
