@@ -79,7 +79,7 @@ def fit_stages(settings, charge_stage: bool = True):
       rays' own)."""
     frozen = frozen_light(settings)
     if charge_stage:
-        yield CHARGE_ONLY if frozen else (False, True)
+        yield (False, not frozen)  # CHARGE_ONLY, with the slopes where not frozen
     stage, count = (FROZEN, settings.frozen_stages) if frozen else (
         SLOPED, settings.refreshes + 1)
     for _ in range(count):

@@ -97,12 +97,15 @@ class RecoSettings:
     def __post_init__(self):
         check_overdispersion(self.overdispersion)
         for name in ("frozen_stages", "refreshes"):
-            value = getattr(self, name)
-            if (not isinstance(value, numbers.Integral) or isinstance(value, bool)
-                    or value < 0):
-                raise ConfigError(f"{name} = {value!r}: must be an integer >= 0")
+            if not _is_count(getattr(self, name)):
+                raise ConfigError(f"{name} = {getattr(self, name)!r}: must be an integer"
+                                  f" >= 0")
         count = self.variability_events
-        if (not isinstance(count, numbers.Integral) or isinstance(count, bool) or count < 0
-                or 0 < count < MIN_VARIABILITY_EVENTS):
+        if not _is_count(count) or 0 < count < MIN_VARIABILITY_EVENTS:
             raise ConfigError(f"variability_events = {count!r}: must be 0 or an integer"
                               f" >= {MIN_VARIABILITY_EVENTS}")
+
+
+def _is_count(value) -> bool:
+    """Whether ``value`` is an integer >= 0 (a bool is not)."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= 0
