@@ -302,8 +302,9 @@ def test_newton_polish_reaches_the_minimum_from_a_point_along_its_valley(
         toy, sampled_event, gradient_fit):
     """From a track one sigma off the fitted minimum along its softest direction (the
     vertex-energy valley where L-BFGS stalls), ``minimisers.polish`` on the Hessian there
-    returns to the minimum: -log L within 0.01 of the fit's and the vertex within 0.1
-    sigma of it."""
+    returns to the minimum: -log L within 0.01 of the fit's and the vertex within 0.15
+    sigma of it (the fit itself stops within ~0.01 in -log L, which is up to
+    sqrt(2 x 0.01) = 0.14 sigma along that valley)."""
     from photonflow.reconstruction import minimisers
     from photonflow.reconstruction.coordinates import local_from_track, track_from_local
 
@@ -326,7 +327,7 @@ def test_newton_polish_reaches_the_minimum_from_a_point_along_its_valley(
     assert value == pytest.approx(gradient_fit.nll, abs=0.01)
     assert 0.0 <= remaining <= 0.01
     sigma = np.sqrt(np.diag(covariance))[:3]
-    assert np.all(np.abs(polished.position - fitted.position) < 0.1 * sigma)
+    assert np.all(np.abs(polished.position - fitted.position) < 0.15 * sigma)
 
 
 def test_the_score_information_is_the_likelihoods_curvature_where_the_model_holds(
@@ -672,3 +673,34 @@ def test_a_fit_is_never_lost_to_the_simulated_events(toy, sampled_event, gradien
     used = _uncorrected(toy, sampled_event, gradient_fit)
     np.testing.assert_allclose(used.bias, variability.score_bias(gradient_fit.covariance,
                                                                   scores[3:]))
+
+
+def test_the_pre_fit_of_padded_hits_is_that_of_the_hits_and_compiles_once(toy,
+                                                                           sampled_event):
+    """Empty slots change no sum of the pre-fit: its seed is the unpadded one to within
+    the ascent's end-point scatter (its fixed-length steps stop ~2 mm apart when the
+    same hits are merely reordered). And two events whose hit counts fall in one
+    power-of-two bucket share one compilation."""
+    from photonflow.reconstruction.seeding import padded_hits, point_source_seed
+
+    detector, params = toy
+    hit, charge, time = (np.asarray(x) for x in pf.likelihood.hit_arrays(
+        sampled_event, detector.n_sensors, np.float64))
+    index = np.flatnonzero(hit)
+    positions = np.asarray(detector.sensor_positions, np.float64)[index]
+    times, charges = time[index], charge[index]
+    box = (positions.min(axis=0), positions.max(axis=0), 1.34)
+    exact = point_source_seed(positions, times, charges, *box)
+    padded = padded_hits(positions, times, charges)
+    assert len(padded[1]) > len(times)
+    seed = point_source_seed(*padded, *box)
+    np.testing.assert_allclose(seed.vertex, exact.vertex, atol=5e-3)  # m
+    np.testing.assert_allclose(seed.time, exact.time, atol=0.03)  # ns
+    np.testing.assert_allclose(seed.direction, exact.direction, atol=2e-3)
+    np.testing.assert_allclose(seed.prompt_charge, exact.prompt_charge, rtol=1e-6)
+    compiled = point_source_seed._cache_size()
+    half = len(padded[1]) // 2 + 1  # the fewest hits of the same bucket
+    fewer = padded_hits(positions[:half], times[:half], charges[:half])
+    assert len(fewer[1]) == len(padded[1])
+    point_source_seed(*fewer, *box)
+    assert point_source_seed._cache_size() == compiled

@@ -65,7 +65,7 @@ from .coordinates import (
 )
 from .minimisers import cast_track, minimise_gradient, minimise_minuit, staged_data
 from .result import RecoResult
-from .seeding import energy_from_charge, point_source_seed
+from .seeding import energy_from_charge, padded_hits, point_source_seed
 from .settings import RecoSettings
 from .variability import score_function, with_variability
 
@@ -326,9 +326,10 @@ def _seed(detector, params, event, dtype):
     positions = np.asarray(detector.sensor_positions, np.float64)[index]
     lows, highs = positions.min(axis=0), positions.max(axis=0)
     group_index = float(np.asarray(params.group_index))
-    cast = lambda x: jnp.asarray(x, dtype)  # noqa: E731
-    return point_source_seed(cast(positions), cast(time[index]), cast(charge[index]),
-                             cast(lows), cast(highs), cast(group_index))
+    cast = lambda x: np.asarray(x, dtype)  # noqa: E731  (no compilation per shape)
+    hits = padded_hits(positions, time[index], charge[index])
+    return point_source_seed(*(cast(x) for x in hits), cast(lows), cast(highs),
+                             cast(group_index))
 
 
 def _fit_particle(functions, detector, params, data, seed, particle, method,

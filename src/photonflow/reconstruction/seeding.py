@@ -37,6 +37,8 @@ PROMPT = 6.0
 GRID = 9
 #: Gradient-ascent steps per kernel width.
 ASCENT_STEPS = 60
+#: Fewest hit slots of the pre-fit's arrays (``padded_hits``).
+MIN_SLOTS = 64
 
 
 @pytree_dataclass
@@ -133,6 +135,22 @@ def point_source_seed(positions, times, charges, lows, highs, group_index,
                 goodness=_goodness(vertex, time, positions, times, weights, group_index,
                                    WIDTHS[-1]),
                 prompt_charge=jnp.sum(jnp.where(prompt, charges, 0.0)))
+
+
+def padded_hits(positions, times, charges):
+    """The hits (``positions`` (K, 3) m, ``times`` (K,) ns, ``charges`` (K,) p.e., NumPy)
+    padded to the next power of two (at least ``MIN_SLOTS``) with empty slots: charge 0
+    (weight 0 in every sum of ``point_source_seed``), time 0 ns, at the first hit's
+    sensor. Events of similar size then share one compiled pre-fit instead of compiling
+    one per hit count (each compilation costs ~1 s and memory that is never returned)."""
+    positions, times, charges = (np.asarray(x) for x in (positions, times, charges))
+    count = len(times)
+    slots = max(MIN_SLOTS, 1 << max(count - 1, 0).bit_length())
+    empty = slots - count
+    anchor = positions[:1] if count else np.zeros((1, 3), positions.dtype)
+    return (np.concatenate([positions, np.repeat(anchor, empty, axis=0)]),
+            np.concatenate([times, np.zeros(empty, times.dtype)]),
+            np.concatenate([charges, np.zeros(empty, charges.dtype)]))
 
 
 def energy_from_charge(model, observed: float, predicted: float, reference: float,
