@@ -378,7 +378,7 @@ def _fit_particle(functions, detector, params, data, seed, particle, method,
                            settings.margin, dtype)
         # ranked by the charge-only likelihood, as the fit's first stage: the seed's time
         # is off for a start far from the point-source vertex
-        return float(functions.value(free_from_track(turned, cast), turned, cast, ranking,
+        return float(functions.value(_free_from_track(turned, cast), turned, cast, ranking,
                                      jnp.zeros((), dtype)))
 
     starts = list(zip(parallel_map(start_value, tracks, settings.threads), tracks,
@@ -434,7 +434,14 @@ def seed_energy(functions, detector, data, frame, seed, particle: str) -> float:
 
 def frame_inside(frame, vertex) -> np.ndarray:
     """``vertex`` (m) moved onto the fit's inner volume if it lies outside it."""
-    return np.asarray(vertex_from_free(frame, free_from_vertex(frame, vertex)), np.float64)
+    vertex = np.asarray(vertex, frame.inner.dtype)
+    return np.asarray(_onto_inner(frame, vertex), np.float64)
+
+
+# compiled once: the starts call these ~60 times per event (eagerly, ~5 ms each)
+_onto_inner = jax.jit(lambda frame, vertex: vertex_from_free(frame,
+                                                             free_from_vertex(frame, vertex)))
+_free_from_track = jax.jit(free_from_track)
 
 
 def _dark_total(detector, data, functions) -> float:
