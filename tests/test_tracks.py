@@ -254,6 +254,24 @@ def test_track_events_round_trip_through_an_event_file(tmp_path):
             np.testing.assert_array_equal(back.sensor_ids, event.sensor_ids)
 
 
+def test_track_events_from_threads_are_the_serial_events():
+    """``threads=3`` gives the serial events, in order: each event's generator and
+    transport depend on its index alone, not on the thread or the timing."""
+    detector = pf.load_detector("TOY_CYLINDER")
+    params = pf.default_params(detector)
+    tracks = random_tracks(detector, "e-", (50.0, 150.0), 7, 5, fiducial_margin=0.5)
+    serial = list(pf.sample_events(detector, params, tracks, 7, 5, generator=FAST))
+    threaded = list(pf.sample_events(detector, params, tracks, 7, 5, generator=FAST,
+                                     threads=3))
+    assert len({len(event.charge) for event in serial}) > 1  # five different events
+    for event, again in zip(serial, threaded, strict=True):
+        np.testing.assert_array_equal(again.sensor_ids, event.sensor_ids)
+        np.testing.assert_array_equal(again.charge, event.charge)
+        np.testing.assert_array_equal(again.time, event.time)
+    with pytest.raises(ConfigError, match="threads = 0"):
+        list(pf.sample_events(detector, params, tracks, 7, 5, threads=0))
+
+
 def invoke(*args):
     return CliRunner().invoke(app, [str(a) for a in args])
 

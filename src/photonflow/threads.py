@@ -18,8 +18,9 @@ call under the caller's setting, so that a float64 fit stays float64.
 
 from __future__ import annotations
 
+import collections
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 
 import jax
@@ -50,3 +51,30 @@ def parallel_map(function: Callable, items: Iterable, threads: int | None = None
 
     with ThreadPoolExecutor(threads) as pool:
         return list(pool.map(call, items))
+
+
+def ordered_map(function: Callable, items: Iterable, threads: int | None = None) -> Iterator:
+    """Yield ``function(item)`` for each of ``items`` in their order, computed on
+    ``threads`` threads (None: ``host_cores()``; 1: in this thread, lazily) with at most
+    ``threads`` calls in flight or waiting to be taken (a long stream is not computed
+    ahead of its reader), each under this thread's ``jax_enable_x64``. For calls that
+    mix host work in Python (holding the GIL) with compiled programs (releasing it): a
+    thread's host work overlaps another's program."""
+    threads = host_cores() if threads is None else int(threads)
+    if threads <= 1:
+        yield from (function(item) for item in items)
+        return
+    x64 = bool(jax.config.jax_enable_x64)
+
+    def call(item):
+        with jax.enable_x64(x64):
+            return function(item)
+
+    with ThreadPoolExecutor(threads) as pool:
+        pending = collections.deque()
+        for item in items:
+            pending.append(pool.submit(call, item))
+            if len(pending) >= threads:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()

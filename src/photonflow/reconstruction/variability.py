@@ -29,6 +29,7 @@ import numpy as np
 
 from ..generator.track import Track
 from ..likelihood import dense_sensor_nll, hit_arrays
+from ..threads import host_cores
 from ..transport.pseudo_data import sample_events
 from .coordinates import fit_frame, local_from_track, track_from_local
 from .minimisers import cast_track, staged_data
@@ -88,17 +89,19 @@ def event_seed(event, seed: int = 0) -> int:
 
 
 def sampled_scores(functions, detector, params, data, track: Track, frame, *,
-                   n_events: int, seed: int, config) -> np.ndarray:
+                   n_events: int, seed: int, config, threads: int | None = None) -> np.ndarray:
     """(n_events, 7) scores (gradients of -log L in ``LOCAL`` coordinates: per m, per ns,
     per rad, per unit of ln E; float64) at
     ``track`` of events simulated at ``track`` by the generator and the sampled mode with
     ``params`` and ``config`` (the readout of the fit's likelihood), read with the fit's
     ``data`` (its emission model and held indirect light at ``track``) about ``frame``
-    (``coordinates.fit_frame`` at the track's direction)."""
+    (``coordinates.fit_frame`` at the track's direction); the events simulated on
+    ``threads`` threads (None: one per core; the same events)."""
     dtype = data.charge.dtype
+    threads = host_cores() if threads is None else threads
     with jax.enable_x64(False):  # the sampled mode's own precision, as for any event
         events = list(sample_events(detector, params, track, seed, n_events,
-                                    config=config))
+                                    config=config, threads=threads))
     dense = [hit_arrays(event, detector.n_sensors, dtype) for event in events]
     hit, charge, time = (jnp.stack(column) for column in zip(*dense, strict=True))
     point = local_from_track(track, dtype)
@@ -155,7 +158,7 @@ def with_variability(functions, detector, params, data, event, result, *, config
         scores = sampled_scores(functions, detector, params, data, track, frame,
                                 n_events=settings.variability_events,
                                 seed=event_seed(event, settings.variability_seed),
-                                config=config)
+                                config=config, threads=settings.threads)
     except Exception as error:  # noqa: BLE001 - e.g. a vertex rounded onto the wall
         warnings.warn(f"no simulated events at the fit ({error}); its covariance is"
                       f" H^-1", RuntimeWarning, stacklevel=2)

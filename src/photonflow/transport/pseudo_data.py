@@ -22,6 +22,7 @@ from ..params import Params, validate_params
 from ..progress import with_progress
 from ..response.hits import photoelectrons_to_event
 from ..sources import DiffuserSource, IsotropicSource, LaserSource, check_source
+from ..threads import ordered_map
 from .optics import DEFAULT_CONFIG, TransportConfig, check_config
 from .sampled import (
     check_seed,
@@ -159,6 +160,7 @@ def sample_events(
     generator: GeneratorSettings | None = None,
     progress: bool = False,
     first_event: int = 0,
+    threads: int = 1,
 ):
     """Yield ``n_events`` independent Monte Carlo events, of indices ``first_event`` to
     ``first_event + n_events - 1``.
@@ -170,19 +172,22 @@ def sample_events(
     ``event_seeds(seed, i)``), so the same seed gives the same events in the same
     order, and a run split into blocks by ``first_event`` (parallel production,
     resuming) gives the same events as one run. ``progress=True`` shows a rich
-    progress bar. Input is validated before the first event (``ConfigError``, one line).
+    progress bar. ``threads`` > 1 computes that many events at once
+    (``threads.ordered_map``: a track's generator, in Python, overlaps another event's
+    compiled transport), the same events in the same order. Input is validated before
+    the first event (``ConfigError``, one line).
     """
-    for name, value in (("n_events", n_events), ("first_event", first_event)):
-        if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < 0:
-            raise ConfigError(f"{name} = {format_value(value)}: must be an integer >= 0")
+    for name, value, lowest in (("n_events", n_events, 0), ("first_event", first_event, 0),
+                                ("threads", threads, 1)):
+        if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < lowest:
+            raise ConfigError(f"{name} = {format_value(value)}: must be an integer >= {lowest}")
     per_event = isinstance(source, list | tuple)
     distinct = list(source) if per_event else [source]
     if per_event and len(distinct) != n_events:
         raise ConfigError(f"{len(distinct)} sources for n_events = {n_events}: need one per event")
     seed, grid, light = _prepare(detector, params, distinct, seed, config, medium, generator)
     sources = distinct if per_event else itertools.repeat(distinct[0], int(n_events))
-    events = (
-        _event(detector, params, source_i, seed, index, config, grid, light)
-        for index, source_i in enumerate(sources, start=int(first_event))
-    )
+    events = ordered_map(
+        lambda pair: _event(detector, params, pair[1], seed, pair[0], config, grid, light),
+        enumerate(sources, start=int(first_event)), threads)
     yield from with_progress(events, "sampling events", total=int(n_events), show=progress)
