@@ -72,7 +72,8 @@ def reconstruct(
         " first-order bias over those events (docs/reconstruction.md).")]
     = _DEFAULTS.bias_correction,
     threads: Annotated[int | None, typer.Option(
-        help="Threads per fitting process for independent likelihood calls, 1 to 256"
+        help="Threads per fitting process for independent likelihood calls and simulated"
+             " events, 1 to 256"
              " (default: the host's cores, shared among --workers); the results do not"
              " depend on it.")] = None,
     workers: Annotated[int | None, typer.Option(

@@ -60,7 +60,8 @@ class RecoSettings:
             instead of a scaled identity, and goes on without it once a step along it
             finds no lower point (``docs/reconstruction.md``, "Fit").
         threads: threads for independent likelihood calls (the starts' values, the
-            Hessian's gradients; ``photonflow.threads``); None: one per core of the
+            Hessian's gradients) and for the simulated events
+            (``photonflow.threads``); None: one per core of the
             host (with ``--scheduler``, of each worker's host). The results do not
             depend on it.
         variability_events: events the generator and the sampled mode simulate at the
