@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 from pathlib import Path
 
 import h5py
@@ -27,15 +26,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
+from sk_muon_extent_scale import Stretched  # the study beside this one
 
 import photonflow as pf
 from photonflow.reconstruction import fit
 from photonflow.reconstruction.coordinates import fit_frame, free_from_track, track_from_free
 from photonflow.reconstruction.minimisers import cast_track, staged_data
 from photonflow.reconstruction.settings import RecoSettings
-
-sys.path.insert(0, str(Path(__file__).parent))
-from sk_muon_extent_scale import Stretched  # noqa: E402
 
 #: (name, prior width on ln lambda): 0 free, None held at 1.
 REFITS = (("fixed", None), ("free", 0.0), ("prior4", 0.04))
