@@ -689,7 +689,7 @@ def test_the_pre_fit_of_padded_hits_is_that_of_the_hits_and_compiles_once(toy,
     index = np.flatnonzero(hit)
     positions = np.asarray(detector.sensor_positions, np.float64)[index]
     times, charges = time[index], charge[index]
-    box = (positions.min(axis=0), positions.max(axis=0), 1.34)
+    box = (positions.min(axis=0), positions.max(axis=0), float(params.group_index))
     exact = point_source_seed(positions, times, charges, *box)
     padded = padded_hits(positions, times, charges)
     assert len(padded[1]) > len(times)
