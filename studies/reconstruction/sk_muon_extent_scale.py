@@ -54,21 +54,29 @@ class Stretched:
         return TabulatedSlice(inner, piece.log_distance, piece.table_cos, piece.moment_root)
 
 
+def truth_pieces():
+    """SK, its preset parameters, the transport settings (1,024 rays, the tables), the
+    fit's float32 likelihood functions, the mu- emission model, the fit frame at
+    ``TRUTH``'s direction, ``TRUTH`` as the reference track and its free coordinates."""
+    detector = pf.load_detector("SK")
+    params = pf.default_params(detector)
+    config = pf.TransportConfig(n_rays=1024, emission_model="tables")
+    functions = fit.likelihood_functions(detector, jnp.float32, config)
+    model = functions.emission("mu-")
+    frame = fit_frame(detector.shape, np.asarray(TRUTH.direction), model.energy_range,
+                      "mu-", 0.0, jnp.float32)
+    reference = cast_track(TRUTH, jnp.float32)
+    return (detector, params, config, functions, model, frame, reference,
+            free_from_track(frame, reference))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--events", type=int, default=40)
     parser.add_argument("--out", default=None, help="per-event rows (JSON lines)")
     args = parser.parse_args()
-    detector = pf.load_detector("SK")
-    params = pf.default_params(detector)
-    config = pf.TransportConfig(n_rays=1024, emission_model="tables")
+    detector, params, config, functions, model, frame, reference, start = truth_pieces()
     dtype = jnp.float32
-    functions = fit.likelihood_functions(detector, dtype, config)
-    model = functions.emission("mu-")
-    frame = fit_frame(detector.shape, np.asarray(TRUTH.direction), model.energy_range,
-                      "mu-", 0.0, dtype)
-    reference = cast_track(TRUTH, dtype)
-    start = free_from_track(frame, reference)
 
     def nll(theta, data):  # theta: (shift of the free energy coordinate, log lambda)
         free = start.at[6].add(theta[0])

@@ -21,31 +21,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
+from sk_muon_extent_scale import TRUTH, truth_pieces  # the study beside this one
 
-import photonflow as pf
 from photonflow.reconstruction import fit
-from photonflow.reconstruction.coordinates import fit_frame, free_from_track
-from photonflow.reconstruction.minimisers import cast_track, staged_data
+from photonflow.reconstruction.minimisers import staged_data
 from photonflow.reconstruction.settings import RecoSettings
 from photonflow.transport.pseudo_data import sample_events
-
-TRUTH = pf.Track("mu-", [0.0, 0.0, 0.0], [0.6, 0.0, 0.8], 1000.0, 0.0)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--events", type=int, default=20)
     args = parser.parse_args()
-    detector = pf.load_detector("SK")
-    params = pf.default_params(detector)
-    config = pf.TransportConfig(n_rays=1024, emission_model="tables")
+    detector, params, config, functions, model, frame, reference, start = truth_pieces()
     dtype = jnp.float32
-    functions = fit.likelihood_functions(detector, dtype, config)
-    model = functions.emission("mu-")
-    frame = fit_frame(detector.shape, np.asarray(TRUTH.direction), model.energy_range,
-                      "mu-", 0.0, dtype)
-    reference = cast_track(TRUTH, dtype)
-    start = free_from_track(frame, reference)
 
     def nll(theta, data):  # theta: (time shift ns, shift of the free energy coordinate)
         free = start.at[3].add(theta[0]).at[6].add(theta[1])
