@@ -43,14 +43,8 @@ def parallel_map(function: Callable, items: Iterable, threads: int | None = None
     threads = max(1, min(threads, len(items)))
     if threads == 1:
         return [function(item) for item in items]
-    x64 = bool(jax.config.jax_enable_x64)
-
-    def call(item):
-        with jax.enable_x64(x64):
-            return function(item)
-
     with ThreadPoolExecutor(threads) as pool:
-        return list(pool.map(call, items))
+        return list(pool.map(_with_this_precision(function), items))
 
 
 def ordered_map(function: Callable, items: Iterable, threads: int | None = None) -> Iterator:
@@ -62,14 +56,10 @@ def ordered_map(function: Callable, items: Iterable, threads: int | None = None)
     thread's host work overlaps another's program."""
     threads = host_cores() if threads is None else int(threads)
     if threads <= 1:
-        yield from (function(item) for item in items)
+        for item in items:
+            yield function(item)
         return
-    x64 = bool(jax.config.jax_enable_x64)
-
-    def call(item):
-        with jax.enable_x64(x64):
-            return function(item)
-
+    call = _with_this_precision(function)
     with ThreadPoolExecutor(threads) as pool:
         pending = collections.deque()
         for item in items:
@@ -78,3 +68,15 @@ def ordered_map(function: Callable, items: Iterable, threads: int | None = None)
                 yield pending.popleft().result()
         while pending:
             yield pending.popleft().result()
+
+
+def _with_this_precision(function: Callable) -> Callable:
+    """``function`` run, in whichever thread calls it, under the calling thread's
+    ``jax_enable_x64`` as it is now."""
+    x64 = bool(jax.config.jax_enable_x64)
+
+    def call(item):
+        with jax.enable_x64(x64):
+            return function(item)
+
+    return call
