@@ -90,19 +90,3 @@ def test_readme_python_example_runs(capsys):
     assert printed[1] == "60.000 m"
     assert printed[2] == "40.3 % coverage, 11146 sensors"
     assert "JUNO" in printed[3]
-
-
-def test_readme_simulation_example_runs():
-    """The README's 'Simulating light' example runs and gives finite gradients."""
-    from pathlib import Path
-
-    import jax
-
-    readme = (Path(__file__).parents[1] / "README.md").read_text()
-    code = readme.split("## Simulating light", 1)[1].split("```python\n", 1)[1].split("```")[0]
-    namespace: dict = {}
-    exec(compile(code, "README.md", "exec"), namespace)
-    assert namespace["event"].n_hits > 10
-    leaves = jax.tree.leaves(namespace["gradient"])
-    assert all(bool(np.all(np.isfinite(np.asarray(leaf)))) for leaf in leaves)
-    assert float(namespace["gradient"].absorption_length) != 0.0

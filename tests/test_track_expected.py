@@ -12,7 +12,6 @@ from photonflow.emission import emission_model
 from photonflow.errors import ConfigError
 from photonflow.generator import stack_tracks
 from photonflow.geometry.sensor_arrays import sensors_for
-from photonflow.likelihood import dense_nll, hit_arrays
 from photonflow.response.detection import acceptance_at_cos
 from photonflow.transport.optics import interaction_rates
 from photonflow.transport.track_direct import DIRECT_COMPONENTS, track_direct_light
@@ -161,62 +160,6 @@ def test_the_prediction_moves_smoothly_with_the_track(toy):
         scale = float(jnp.max(jnp.abs(change)))
         assert scale > 0
         np.testing.assert_allclose(change, linear, atol=0.02 * scale)
-
-
-def test_autodiff_matches_finite_differences_with_the_indirect_light(toy):
-    """With the rays' reference track held fixed, the full likelihood (direct + 2 bounces
-    of indirect light, charge + first-hit time) of a sampled event is a smooth function
-    of the 7 track parameters: autodiff agrees with central differences (float64) within
-    1 % of each derivative (or 1e-3 of the largest), at a vertex 0.5 m from the barrel
-    and for a direction grazing a cap edge. The default reference (the track itself)
-    gives the same value and gradient."""
-    detector, params = toy
-
-    def track_of(x, numpy=jnp):
-        """(x, y, z m, t ns, theta, phi rad, log E/MeV) -> Track."""
-        direction = numpy.stack([numpy.sin(x[4]) * numpy.cos(x[5]),
-                                 numpy.sin(x[4]) * numpy.sin(x[5]), numpy.cos(x[4])])
-        return pf.Track("mu-", x[:3], direction, numpy.exp(x[6]), x[3])
-
-    # 0.5 m from the barrel (radius 2 m) heading along it; from near the axis towards
-    # the top cap's edge (radius 2 m, z = 2 m)
-    points = [np.array([1.5, 0.0, -0.5, 0.0, 0.5 * np.pi, 0.5 * np.pi, np.log(600.0)]),
-              np.array([0.1, 0.0, 0.0, 1.0, np.arctan2(1.9, 2.0), 0.0, np.log(400.0)])]
-    events = [pf.sample(detector, params, track_of(point, np), seed=5) for point in points]
-    with jax.enable_x64(True):
-        params = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), params)
-        predict = pf.expected_function(detector, jnp.float64,
-                                       config=pf.TransportConfig(n_rays=128, n_bounces=2))
-
-        # pf.nll on the event's dense (N,) arrays: one program for every event
-        def nll(prediction, hits):
-            return dense_nll(prediction, *hits, prediction.dark_rate,
-                             prediction.spe_width, prediction.window)
-
-        def loss(x, reference, hits):
-            return nll(predict(params, track_of(x), None, reference), hits)
-
-        def own_loss(x, hits):
-            return nll(predict(params, track_of(x)), hits)
-
-        value_and_grad = jax.jit(jax.value_and_grad(loss))
-        steps = [1e-5] * 4 + [1e-6] * 3
-        for k, (point, event) in enumerate(zip(points, events, strict=True)):
-            event = hit_arrays(event, detector.n_sensors, jnp.float64)
-            start = jnp.asarray(point + np.array([0.03, -0.02, 0.02, 0.5, 0.02, -0.03, 0.05]))
-            reference = track_of(start)
-            value, gradient = value_and_grad(start, reference, event)
-            if k == 0:  # the default reference: the same value and gradient
-                own_value, own_gradient = jax.value_and_grad(own_loss)(start, event)
-                assert float(own_value) == pytest.approx(float(value), rel=1e-12)
-                np.testing.assert_allclose(own_gradient, gradient, rtol=1e-9, atol=1e-9)
-            central = np.array([(value_and_grad(start + h * e, reference, event)[0]
-                                 - value_and_grad(start - h * e, reference, event)[0]) / (2 * h)
-                                for e, h in zip(np.eye(7), steps, strict=True)])
-            gradient = np.asarray(gradient)
-            assert np.all(np.isfinite(gradient))
-            np.testing.assert_allclose(gradient, central, rtol=0.01,
-                                       atol=1e-3 * np.max(np.abs(gradient)))
 
 
 #: The optical and sensor fields of ``Params`` the track light depends on (scalars).
