@@ -15,7 +15,7 @@ positive: the model's light is early).
 
     python studies/reconstruction/sk_first_hit_times.py [--source point|muon]
         [--light all|direct|scattered|reflected] [--indirect-shape SHAPE]
-        [--direct-variance F]
+        [--direct-variance F] [--overdispersion R]
 
 - ``--light``: the light kept: ``direct`` without scattering and reflection,
   ``scattered`` without reflection, ``reflected`` without scattering.
@@ -26,6 +26,8 @@ positive: the model's light is early).
   direct light of the rays' mean delay (the rays' variance dropped).
 - ``--direct-variance F``: the direct light's own variance (before the transit-time
   spread) times F.
+- ``--overdispersion R``: the first-hit density of the likelihood's overdispersed
+  counts (variance mu + R mu^2) instead of Poisson.
 """
 
 from __future__ import annotations
@@ -82,6 +84,7 @@ def main() -> None:
     parser.add_argument("--indirect-shape", choices=("gaussian", "gamma", "exponential"),
                         default="gaussian")
     parser.add_argument("--direct-variance", type=float, default=1.0)
+    parser.add_argument("--overdispersion", type=float, default=0.0)
     args = parser.parse_args()
     detector = pf.load_detector("SK")
     params = pf.default_params(detector)
@@ -114,8 +117,14 @@ def main() -> None:
         part = jax.tree.map(lambda x: x[ids] if jnp.ndim(x) and x.shape[0] == mu.size
                             else x, prediction)
         log_lambda, big_lambda = _log_intensity_and_integral(part, times, mu_dark, window)
-        u = jnp.expm1(-big_lambda) / jnp.expm1(-(part.charge + mu_dark))
-        return u, log_lambda - big_lambda
+        total = part.charge + mu_dark
+        r = args.overdispersion
+        if r == 0:
+            u = jnp.expm1(-big_lambda) / jnp.expm1(-total)
+            return u, log_lambda - big_lambda
+        # the Polya process of photonflow.likelihood: counts of variance mu + r mu^2
+        u = (1 - (1 + r * big_lambda) ** (-1 / r)) / (1 - (1 + r * total) ** (-1 / r))
+        return u, log_lambda - (1 / r + 1) * jnp.log1p(r * big_lambda)
 
     offset = np.asarray(detector.sensor_positions) - np.asarray(POSITION)
     distance = np.linalg.norm(offset, axis=1)
@@ -140,7 +149,8 @@ def main() -> None:
         groups += _bins("distance m", distance[ids], [0, 10, 15, 20, 25, 50])
         groups += _bins("cos incidence", cos_incidence[ids], [-1, 0.5, 0.7, 0.85, 0.95, 1.01])
     print(f"{args.source}, light {args.light}, indirect {args.indirect_shape}, direct"
-          f" variance x {args.direct_variance:g}: {EVENTS} events, {ids.size} hits")
+          f" variance x {args.direct_variance:g}, overdispersion {args.overdispersion:g}:"
+          f" {EVENTS} events, {ids.size} hits")
     print(f"{'bin':28s} {'n':>7s} {'mean u - 1/2':>16s} {'best shift ns':>14s}")
     for name, mask in groups:
         n = int(mask.sum())
