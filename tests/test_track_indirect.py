@@ -41,6 +41,23 @@ def events(toy):
     return [pf.sample(detector, params, _track_of(p, numpy=np), seed=5) for p in POINTS]
 
 
+def _functions(detector, params):
+    """float64 params, and the predictor and the holder of the indirect light (128 rays,
+    2 bounces) that every test here shares."""
+    params = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), params)
+    config = pf.TransportConfig(n_rays=128, n_bounces=2)
+    predict = pf.expected_function(detector, jnp.float64, config=config)
+    hold = held_indirect_function(detector, jnp.float64, config=config)
+    return params, predict, hold
+
+
+def _nll(prediction, hits):
+    """``pf.nll`` on an event's dense (N,) arrays (``hit_arrays``): one program for every
+    event."""
+    return dense_nll(prediction, *hits, prediction.dark_rate, prediction.spe_width,
+                     prediction.window)
+
+
 def test_autodiff_matches_finite_differences_with_the_indirect_light(toy, events):
     """With the rays' reference track held fixed, the full likelihood (direct + 2 bounces
     of indirect light, charge + first-hit time) of a sampled event is a smooth function
@@ -50,20 +67,13 @@ def test_autodiff_matches_finite_differences_with_the_indirect_light(toy, events
     gives the same value and gradient."""
     detector, params = toy
     with jax.enable_x64(True):
-        params = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), params)
-        predict = pf.expected_function(detector, jnp.float64,
-                                       config=pf.TransportConfig(n_rays=128, n_bounces=2))
-
-        # pf.nll on the event's dense (N,) arrays: one program for every event
-        def nll(prediction, hits):
-            return dense_nll(prediction, *hits, prediction.dark_rate,
-                             prediction.spe_width, prediction.window)
+        params, predict, _ = _functions(detector, params)
 
         def loss(x, reference, hits):
-            return nll(predict(params, _track_of(x), None, reference), hits)
+            return _nll(predict(params, _track_of(x), None, reference), hits)
 
         def own_loss(x, hits):
-            return nll(predict(params, _track_of(x)), hits)
+            return _nll(predict(params, _track_of(x)), hits)
 
         value_and_grad = jax.jit(jax.value_and_grad(loss))
         steps = [1e-5] * 4 + [1e-6] * 3
@@ -85,14 +95,6 @@ def test_autodiff_matches_finite_differences_with_the_indirect_light(toy, events
                                        atol=1e-3 * np.max(np.abs(gradient)))
 
 
-def _functions(detector, params):
-    params = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), params)
-    config = pf.TransportConfig(n_rays=128, n_bounces=2)
-    predict = pf.expected_function(detector, jnp.float64, config=config)
-    hold = held_indirect_function(detector, jnp.float64, config=config)
-    return params, predict, hold
-
-
 def test_held_light_is_the_full_prediction_at_the_held_track(toy, events):
     """Toy cylinder, float64, at a vertex 0.5 m from the barrel and a direction grazing a
     cap edge: the event likelihood (charge + first-hit time) with the indirect light
@@ -103,14 +105,10 @@ def test_held_light_is_the_full_prediction_at_the_held_track(toy, events):
         params, predict, hold = _functions(detector, params)
 
         def loss(x, held, hits):
-            prediction = predict(params, _track_of(x), held=held)
-            return dense_nll(prediction, *hits, prediction.dark_rate, prediction.spe_width,
-                             prediction.window)
+            return _nll(predict(params, _track_of(x), held=held), hits)
 
-        def full_loss(x, hits):
-            prediction = predict(params, _track_of(x))  # rays fixed at the track itself
-            return dense_nll(prediction, *hits, prediction.dark_rate, prediction.spe_width,
-                             prediction.window)
+        def full_loss(x, hits):  # rays fixed at the track itself
+            return _nll(predict(params, _track_of(x)), hits)
 
         for point, event in zip(POINTS, events, strict=True):
             hits = hit_arrays(event, detector.n_sensors, jnp.float64)

@@ -40,7 +40,12 @@ import jax.numpy as jnp
 import numpy as np
 
 import photonflow as pf
-from photonflow.likelihood import _log_intensity_and_integral, dark_expectation
+from photonflow.likelihood import (
+    _log_intensity_and_integral,
+    dark_expectation,
+    first_hit_logpdf,
+    log_no_photoelectron,
+)
 from photonflow.transport.pseudo_data import sample_events
 from photonflow.transport.track_direct import DIRECT_COMPONENTS
 
@@ -114,17 +119,16 @@ def main() -> None:
 
     @jax.jit
     def cdf_and_logpdf(ids, times):
+        """(u, log p_first) of the chosen sensors at their times: the likelihood's
+        first-hit CDF and density (Poisson, or the Polya process of overdispersion r)."""
         part = jax.tree.map(lambda x: x[ids] if jnp.ndim(x) and x.shape[0] == mu.size
                             else x, prediction)
-        log_lambda, big_lambda = _log_intensity_and_integral(part, times, mu_dark, window)
-        total = part.charge + mu_dark
         r = args.overdispersion
-        if r == 0:
-            u = jnp.expm1(-big_lambda) / jnp.expm1(-total)
-            return u, log_lambda - big_lambda
-        # the Polya process of photonflow.likelihood: counts of variance mu + r mu^2
-        u = (1 - (1 + r * big_lambda) ** (-1 / r)) / (1 - (1 + r * total) ** (-1 / r))
-        return u, log_lambda - (1 / r + 1) * jnp.log1p(r * big_lambda)
+        big_lambda = _log_intensity_and_integral(part, times, mu_dark, window)[1]
+        unhit = log_no_photoelectron(part.charge + mu_dark, r)  # log P(no hit)
+        before = log_no_photoelectron(big_lambda, r)  # log P(no hit before t)
+        u = jnp.expm1(before) / jnp.expm1(unhit)
+        return u, first_hit_logpdf(part, times, mu_dark, window, r)
 
     offset = np.asarray(detector.sensor_positions) - np.asarray(POSITION)
     distance = np.linalg.norm(offset, axis=1)
