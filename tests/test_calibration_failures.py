@@ -13,6 +13,9 @@ from photonflow.calibration.structured import StructuredMatrix
 from photonflow.transport.optics import TransportConfig
 from photonflow.transport.pseudo_data import sample_events
 
+#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
+pytestmark = pytest.mark.compile_bound
+
 CONFIG = TransportConfig(n_bounces=2, n_rays=256)
 #: The sources at which the expected mode once gave NaN charges on TOY_CYLINDER's cap
 #: sensors, so that calibrate died with "LinAlgError: Eigenvalues did not converge".

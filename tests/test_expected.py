@@ -20,6 +20,9 @@ from photonflow.transport.direct import direct_light
 from photonflow.transport.expected import expected, expected_jit
 from photonflow.transport.optics import TransportConfig
 
+#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
+pytestmark = pytest.mark.compile_bound
+
 WINDOW = (-100.0, 900.0)
 SMALL = TransportConfig(n_bounces=2, n_rays=1024, window=WINDOW)
 

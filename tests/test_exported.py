@@ -11,6 +11,9 @@ import photonflow as pf
 from photonflow import exported
 from photonflow.transport.sampled import sample_photons
 
+#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
+pytestmark = pytest.mark.compile_bound
+
 
 @pytest.fixture
 def artifacts(tmp_path, monkeypatch):

@@ -3,12 +3,16 @@ prediction's values, and ``photonflow display --predicted`` draws a track event 
 refuses any other in one line with exit code 2."""
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 import photonflow as pf
 from photonflow.cli import app
 from photonflow.response.spe import single_pe_moments
 from photonflow.viz.prediction_display import plot_prediction
+
+#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
+pytestmark = pytest.mark.compile_bound
 
 
 def _sensor_values(ax):

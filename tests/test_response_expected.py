@@ -8,12 +8,16 @@ from types import SimpleNamespace
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import photonflow as pf
 from photonflow.geometry.sensor_arrays import sensors_for
 from photonflow.response.expected import SensorLight, expected_response
 from photonflow.transport.expected import sensor_light
 from photonflow.transport.optics import TransportConfig
+
+#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
+pytestmark = pytest.mark.compile_bound
 
 RESPONSE_FIELDS = ("efficiency", "time_offset", "tts", "dark_rate", "spe_width")
 

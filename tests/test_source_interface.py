@@ -9,11 +9,15 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import photonflow as pf
 from photonflow.pytree import pytree_dataclass
 from photonflow.sources import DiffuserSource, IsotropicSource, LaserSource, PointSource
 from photonflow.transport.emission import sample_directions
+
+#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
+pytestmark = pytest.mark.compile_bound
 
 
 @pytree_dataclass

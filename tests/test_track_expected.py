@@ -17,6 +17,9 @@ from photonflow.transport.optics import interaction_rates
 from photonflow.transport.track_direct import DIRECT_COMPONENTS, track_direct_light
 from photonflow.transport.track_expected import _skewed_indirect
 
+#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
+pytestmark = pytest.mark.compile_bound
+
 
 @pytest.fixture(scope="module")
 def toy():

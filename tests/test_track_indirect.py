@@ -13,6 +13,9 @@ import photonflow as pf
 from photonflow.likelihood import dense_nll, hit_arrays
 from photonflow.transport.expected import held_indirect_function
 
+#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
+pytestmark = pytest.mark.compile_bound
+
 #: (x, y, z m, t ns, theta, phi rad, log E/MeV): 0.5 m from the toy barrel (radius 2 m)
 #: heading along it, and from near the axis towards the top cap's edge.
 POINTS = (np.array([1.5, 0.0, -0.5, 0.0, 0.5 * np.pi, 0.5 * np.pi, np.log(600.0)]),

@@ -27,6 +27,9 @@ from photonflow.transport.tracks import (
     track_photons,
 )
 
+#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
+pytestmark = pytest.mark.compile_bound
+
 #: QE (%) of the SK 20-inch PMT vs wavelength (nm): shared/reference/physics.md section 4
 #: ("QE vs lambda", WCSim WCSimPMTObject.cc raw table).
 SK_QE_TABLE = {300: 1.4, 340: 16.9, 380: 20.6, 400: 21.1, 420: 20.2, 460: 16.7, 500: 11.6,
