@@ -35,7 +35,9 @@ ONE_THREAD = "--xla_cpu_parallel_codegen_split_count=1 --xla_cpu_multi_thread_ei
 #: either way: the whole suite also passes unoptimised.
 
 
-def _use_classic_emitters() -> None:
+def _use_test_xla_flags() -> None:
+    """Add CLASSIC_EMITTERS and ONE_THREAD to XLA_FLAGS, unless the emitters are chosen
+    there already or this XLA refuses a flag."""
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_cpu_use_fusion_emitters" in flags:
         return
@@ -46,7 +48,7 @@ def _use_classic_emitters() -> None:
         os.environ["XLA_FLAGS"] = flags
 
 
-_use_classic_emitters()
+_use_test_xla_flags()
 # No persistent compilation cache in the test run, in the workers or in the command-line
 # subprocesses they start (which inherit the environment): CI machines start empty, so a
 # cache only adds writes, and one CI run died in JAX's cache write (a segmentation fault
@@ -57,7 +59,6 @@ _cache = os.environ.get("PHOTONFLOW_TEST_JAX_CACHE", "")
 if _cache:
     os.environ["PHOTONFLOW_COMPILATION_CACHE"] = _cache
     jax.config.update("jax_compilation_cache_dir", _cache)
-
 
 
 @pytest.fixture(autouse=True, scope="module")
