@@ -67,19 +67,15 @@ def _compile_effort(request):
     this process and in the command-line subprocesses it starts; others as users get
     them."""
     unoptimised = request.node.get_closest_marker("compile_bound") is not None
-    previous = (jax.config.read("jax_disable_most_optimizations"),
-                os.environ.get(_UNOPTIMISED))
+    previous = jax.config.read("jax_disable_most_optimizations")
     jax.config.update("jax_disable_most_optimizations", unoptimised)
-    if unoptimised:
-        os.environ[_UNOPTIMISED] = "1"
-    else:
-        os.environ.pop(_UNOPTIMISED, None)
-    yield
-    jax.config.update("jax_disable_most_optimizations", previous[0])
-    if previous[1] is None:
-        os.environ.pop(_UNOPTIMISED, None)
-    else:
-        os.environ[_UNOPTIMISED] = previous[1]
+    with pytest.MonkeyPatch.context() as patch:
+        if unoptimised:
+            patch.setenv(_UNOPTIMISED, "1")
+        else:
+            patch.delenv(_UNOPTIMISED, raising=False)
+        yield
+    jax.config.update("jax_disable_most_optimizations", previous)
 
 
 settings.register_profile(

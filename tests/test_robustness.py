@@ -26,6 +26,9 @@ import photonflow as pf
 from photonflow.geometry.layouts import box_grid_layout, string_layout
 from photonflow.transport.expected import expected_function
 
+#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
+pytestmark = pytest.mark.compile_bound
+
 #: Small transport settings: every path type (bounces, probes, mirror quadrature) runs.
 CONFIG = pf.TransportConfig(n_bounces=2, n_rays=32, specular_probes=2)
 KINDS = ("isotropic", "laser", "diffuser")
@@ -152,11 +155,10 @@ def checker(shape: str, kind: str):
 
     gradient = jax.value_and_grad(loss, argnums=(0, 1), has_aux=True)
 
-    # compiled without LLVM's optimisations and with XLA's classic CPU emitters: 13
+    # compiled unoptimised (compile_bound) with XLA's classic CPU emitters (conftest): 13
     # instead of 27 s each, for a few dozen evaluations that then take 50 instead of
     # 15 ms on the toys
-    @functools.partial(jax.jit, compiler_options={"xla_backend_optimization_level": 0,
-                                                  "xla_cpu_use_fusion_emitters": False})
+    @jax.jit
     def check(p, source):
         (value, prediction), (d_params, d_source) = gradient(p, source)
         return prediction, value, d_params, d_source
