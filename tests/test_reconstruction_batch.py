@@ -1,6 +1,6 @@
 """The batch command ``photonflow reconstruct`` (issue 25): a job killed outright
-(SIGKILL) and resumed writes the same file as an uninterrupted one, ``--workers 2`` the
-same results as a serial job, events that cannot be fitted are recorded and the job
+(SIGKILL) and resumed on two Dask workers writes the same file as an uninterrupted
+serial one, events that cannot be fitted are recorded and the job
 goes on, and file-level problems are one line with exit code 2. ``photonflow evaluate``
 summarises a reconstruction file against the truth.
 
@@ -126,7 +126,11 @@ def test_the_reference_job_records_every_event(folder):
     np.testing.assert_array_equal(earlier.reco["covariance"], table.reco["covariance"])
 
 
-def test_a_job_killed_midway_and_resumed_writes_the_same_file(folder):
+def test_a_job_killed_midway_and_resumed_on_two_workers_writes_the_serial_file(folder):
+    """Killed outright (SIGKILL) after its first event, the serial job resumed with
+    ``--workers 2`` (the rest of the events shared by two Dask workers) writes the file
+    of the uninterrupted serial job: the resume loses and duplicates nothing, and the
+    workers give the serial results (one job tests both: each costs a job's start-up)."""
     partial = folder / ".killed.h5.partial"
     process = subprocess.Popen([sys.executable, "-m", "photonflow", "reconstruct",
                                 "events.h5", "--out", "killed.h5", *FAST], cwd=folder,
@@ -141,15 +145,10 @@ def test_a_job_killed_midway_and_resumed_writes_the_same_file(folder):
     kept = rows_written(partial)
     assert 1 <= kept < 4 and not (folder / "killed.h5").exists()
     resumed = run(folder, "reconstruct", "events.h5", "--out", "killed.h5", *FAST,
-                  "--resume")
+                  "--resume", "--workers", "2")
     assert f"resumed at event {kept}" in resumed.stdout
     assert not partial.exists()
     same_file(folder / "reference.h5", folder / "killed.h5")
-
-
-def test_two_workers_give_the_serial_results(folder):
-    run(folder, "reconstruct", "events.h5", "--out", "workers.h5", *FAST, "--workers", "2")
-    same_file(folder / "reference.h5", folder / "workers.h5")
 
 
 def test_file_level_problems_are_one_line_and_exit_2(folder):
