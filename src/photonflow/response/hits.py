@@ -23,7 +23,6 @@ from typing import TYPE_CHECKING
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.special import ndtr, ndtri
 
 from ..errors import ConfigError, format_value
 from ..io.events import Event, Truth, make_event
@@ -57,6 +56,8 @@ def single_pe_charges(rng: np.random.Generator, count: int, spe_width: float) ->
     Drawn by inverse CDF restricted to q >= 0: q = 1 + w ndtri(F0 + u (1 - F0)) with
     F0 = Phi(-1 / w), so every draw is used and none is negative.
     """
+    from scipy.special import ndtr, ndtri  # here: importing it costs every command 0.2 s
+
     width = float(spe_width)
     floor = ndtr(-1.0 / width)
     u = rng.random(count)
