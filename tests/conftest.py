@@ -36,18 +36,20 @@ LIGHT_LLVM = "--xla_backend_optimization_level=1 --xla_llvm_disable_expensive_pa
 #: whose time is mostly XLA compiling programs they then run a few times. There it
 #: roughly halves the compilation; for the whole suite it would cost time, since the
 #: fits and the calibration ensemble run ~2.5x slower unoptimised (2026-11-29, two
-#: workers: the marked modules took 1,136 worker-seconds optimised against 836
+#: workers, before LIGHT_LLVM: the marked modules took 1,136 worker-seconds at XLA's
+#: default optimisation against 836
 #: unoptimised, the whole suite 2,566 against 3,253). The numbers checked are the same
 #: either way: the whole suite also passes unoptimised.
 
 
 def _use_test_xla_flags() -> None:
-    """Add CLASSIC_EMITTERS, ONE_THREAD and LIGHT_LLVM to XLA_FLAGS, unless the emitters
-    are chosen there already or this XLA refuses a flag."""
+    """Put CLASSIC_EMITTERS, ONE_THREAD and LIGHT_LLVM ahead of the flags in XLA_FLAGS
+    (a flag given there again wins), unless the emitters are chosen there already or
+    this XLA refuses a flag."""
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_cpu_use_fusion_emitters" in flags:
         return
-    flags = f"{flags} {CLASSIC_EMITTERS} {ONE_THREAD} {LIGHT_LLVM}".strip()
+    flags = f"{CLASSIC_EMITTERS} {ONE_THREAD} {LIGHT_LLVM} {flags}".strip()
     probe = subprocess.run([sys.executable, "-c", "import jax; jax.numpy.zeros(1)"],
                            env={**os.environ, "XLA_FLAGS": flags}, capture_output=True)
     if probe.returncode == 0:
@@ -70,8 +72,8 @@ if _cache:
 @pytest.fixture(autouse=True, scope="module")
 def _compile_effort(request):
     """For a ``compile_bound`` module: programs compiled without most optimisations, in
-    this process and in the command-line subprocesses it starts; others as users get
-    them."""
+    this process and in the command-line subprocesses it starts; others with LLVM at O1
+    (LIGHT_LLVM)."""
     unoptimised = request.node.get_closest_marker("compile_bound") is not None
     previous = jax.config.read("jax_disable_most_optimizations")
     jax.config.update("jax_disable_most_optimizations", unoptimised)

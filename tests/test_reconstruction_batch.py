@@ -127,7 +127,7 @@ def test_the_reference_job_records_every_event(folder):
 
 
 def test_a_job_killed_midway_and_resumed_on_two_workers_writes_the_serial_file(folder):
-    """Killed outright (SIGKILL) after its first event, the serial job resumed with
+    """Killed outright (SIGKILL) once its first row is written, the serial job resumed with
     ``--workers 2`` (the rest of the events shared by two Dask workers) writes the file
     of the uninterrupted serial job: the resume loses and duplicates nothing, and the
     workers give the serial results (one job tests both: each costs a job's start-up)."""
@@ -187,7 +187,8 @@ def test_file_level_problems_are_one_line_and_exit_2(folder):
 
 def test_bad_events_are_recorded_and_the_batch_goes_on(folder):
     """Non-finite hits, sensor ids out of range, all hits in one sensor: recorded
-    failures with their reasons, in order, without a fit."""
+    failures with their reasons, in order, without a fit; a serial job resumed at an
+    event (``first_event``) gives the results from that event on."""
     detector = pf.load_detector("TOY_CYLINDER")
     params = pf.default_params(detector)
     bad = [make_event([1, 2], [1.0, math.nan], [3.0, 4.0]),
@@ -200,6 +201,8 @@ def test_bad_events_are_recorded_and_the_batch_goes_on(folder):
                        "sensor id 900 out of range (the detector has 200 sensors)",
                        "all hits in one sensor"]
     assert all(not r.converged and math.isnan(r.energy) for r in results)
+    resumed = reconstruct_events(detector, params, bad, "auto", config=CONFIG, first_event=2)
+    assert [r.failure for r in resumed] == reasons[2:]
 
 
 def test_evaluate_summarises_against_the_truth(folder):

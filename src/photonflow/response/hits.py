@@ -56,7 +56,7 @@ def single_pe_charges(rng: np.random.Generator, count: int, spe_width: float) ->
     Drawn by inverse CDF restricted to q >= 0: q = 1 + w ndtri(F0 + u (1 - F0)) with
     F0 = Phi(-1 / w), so every draw is used and none is negative.
     """
-    from scipy.special import ndtr, ndtri  # here: importing it costs every command 0.2 s
+    from scipy.special import ndtr, ndtri  # here: at import it cost every command 0.3 s
 
     width = float(spe_width)
     floor = ndtr(-1.0 / width)
