@@ -29,7 +29,7 @@ ONE_THREAD = "--xla_cpu_parallel_codegen_split_count=1 --xla_cpu_multi_thread_ei
 #: the modules not marked ``compile_bound``): on the toy reconstruction 12-20 % less
 #: compilation (a fit's programs 45.7 -> 39.5 s, its simulated events' 20.5 -> 16.7 s)
 #: and the calibration ensemble's first experiment 38.2 -> 35.0 s, with the same run
-#: times (2026-11-29).
+#: times there (2026-11-29; on SK's transport benchmark it saved no compilation).
 LIGHT_LLVM = "--xla_backend_optimization_level=1 --xla_llvm_disable_expensive_passes=true"
 #: JAX_DISABLE_MOST_OPTIMIZATIONS (LLVM at O0, no expensive passes) is set only for the
 #: modules marked ``compile_bound`` (``pytestmark = pytest.mark.compile_bound``): those
@@ -37,9 +37,8 @@ LIGHT_LLVM = "--xla_backend_optimization_level=1 --xla_llvm_disable_expensive_pa
 #: roughly halves the compilation; for the whole suite it would cost time, since the
 #: fits and the calibration ensemble run ~2.5x slower unoptimised (2026-11-29, two
 #: workers, before LIGHT_LLVM: the marked modules took 1,136 worker-seconds at XLA's
-#: default optimisation against 836
-#: unoptimised, the whole suite 2,566 against 3,253). The numbers checked are the same
-#: either way: the whole suite also passes unoptimised.
+#: default optimisation against 836 unoptimised, the whole suite 2,566 against 3,253).
+#: The numbers checked are the same either way: the whole suite also passes unoptimised.
 
 
 def _use_test_xla_flags() -> None:
