@@ -13,7 +13,6 @@ from photonflow.calibration.structured import StructuredMatrix
 from photonflow.transport.optics import TransportConfig
 from photonflow.transport.pseudo_data import sample_events
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 CONFIG = TransportConfig(n_bounces=2, n_rays=256)

@@ -10,7 +10,6 @@ import pytest
 import photonflow
 from photonflow.geometry import PRESETS, preset_table
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -20,7 +20,6 @@ import photonflow as pf
 from photonflow.errors import ConfigError
 from photonflow.io import make_event, write_events
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 TOY = ["--detector", "TOY_CYLINDER"]

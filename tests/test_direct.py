@@ -15,7 +15,6 @@ from photonflow.pytree import replace
 from photonflow.sources import DiffuserSource, IsotropicSource, LaserSource, check_source
 from photonflow.transport import SPEED_OF_LIGHT, direct_light, direct_light_jit, disc_solid_angle
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 # ---- references independent of the implementation ------------------------------------

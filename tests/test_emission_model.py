@@ -13,7 +13,6 @@ from photonflow.generator.cherenkov import cherenkov_threshold
 from photonflow.generator.constants import MUON_MASS
 from photonflow.generator.materials import WATER, refractive_index
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 

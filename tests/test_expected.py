@@ -20,7 +20,6 @@ from photonflow.transport.direct import direct_light
 from photonflow.transport.expected import expected, expected_jit
 from photonflow.transport.optics import TransportConfig
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 WINDOW = (-100.0, 900.0)

@@ -11,7 +11,6 @@ import photonflow as pf
 from photonflow import exported
 from photonflow.transport.sampled import sample_photons
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 

@@ -19,7 +19,6 @@ from photonflow import xla_settings
 from photonflow.numerics import default_float_dtype, strict_array
 from photonflow.transport.pseudo_data import event_keys
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 README = Path(__file__).resolve().parents[1] / "README.md"

@@ -13,7 +13,6 @@ import pytest
 import photonflow as pf
 from photonflow.transport.expected import expected_jit
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 CONFIG = pf.TransportConfig(n_rays=64)

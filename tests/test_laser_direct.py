@@ -22,7 +22,6 @@ from photonflow.response.detection import acceptance_at_cos
 from photonflow.sources import DiffuserSource, IsotropicSource, LaserSource
 from photonflow.transport import direct_light, direct_light_jit, disc_solid_angle
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 # ---- float64 references: integrals over the disc's area, independent of the rim forms ------

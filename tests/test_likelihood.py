@@ -26,7 +26,6 @@ from photonflow.params import N_ACCEPTANCE_ANGLES, PARAM_SPECS, Params
 from photonflow.prediction import Prediction
 from photonflow.response import single_pe_charges
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 SPE_WIDTH = 0.4

@@ -20,7 +20,6 @@ from photonflow.transport.mirror_cover import _ellipses_covered
 from photonflow.transport.mirror_geometry import circle_reflections, focusing_ratio
 from photonflow.transport.optics import TransportConfig, specular_direction
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 #: ``mirror_paths`` compiled (the shape static): 1.7 s instead of 12.6 s op by op.

@@ -11,7 +11,6 @@ from photonflow.cli import app
 from photonflow.response.spe import single_pe_moments
 from photonflow.viz.prediction_display import plot_prediction
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 

@@ -19,7 +19,6 @@ from photonflow.sources import IsotropicSource
 from photonflow.transport import production
 from photonflow.transport.production import produce_events
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 TOY = ["--detector", "TOY_CYLINDER", "--photons", "1e4"]

@@ -1,8 +1,8 @@
 """The batch command ``photonflow reconstruct`` (issue 25): a job killed outright
 (SIGKILL) and resumed on two Dask workers writes the same file as an uninterrupted
-serial one, events that cannot be fitted are recorded and the job
-goes on, and file-level problems are one line with exit code 2. ``photonflow evaluate``
-summarises a reconstruction file against the truth.
+serial one, events that cannot be fitted are recorded and the job goes on, and
+file-level problems are one line with exit code 2. ``photonflow evaluate`` summarises a
+reconstruction file against the truth.
 
 The toy detector, direct light only and short fits (the file's content, not the fits'
 quality, is under test); the subprocesses share a persistent compilation cache in the

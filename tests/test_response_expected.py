@@ -16,7 +16,6 @@ from photonflow.response.expected import SensorLight, expected_response
 from photonflow.transport.expected import sensor_light
 from photonflow.transport.optics import TransportConfig
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 RESPONSE_FIELDS = ("efficiency", "time_offset", "tts", "dark_rate", "spe_width")

@@ -26,7 +26,6 @@ import photonflow as pf
 from photonflow.geometry.layouts import box_grid_layout, string_layout
 from photonflow.transport.expected import expected_function
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 #: Small transport settings: every path type (bounces, probes, mirror quadrature) runs.

@@ -16,7 +16,6 @@ from photonflow.pytree import pytree_dataclass
 from photonflow.sources import DiffuserSource, IsotropicSource, LaserSource, PointSource
 from photonflow.transport.emission import sample_directions
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 

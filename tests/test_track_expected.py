@@ -17,7 +17,6 @@ from photonflow.transport.optics import interaction_rates
 from photonflow.transport.track_direct import DIRECT_COMPONENTS, track_direct_light
 from photonflow.transport.track_expected import _skewed_indirect
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 

@@ -13,7 +13,6 @@ import photonflow as pf
 from photonflow.likelihood import dense_nll, hit_arrays
 from photonflow.transport.expected import held_indirect_function
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 #: (x, y, z m, t ns, theta, phi rad, log E/MeV): 0.5 m from the toy barrel (radius 2 m)

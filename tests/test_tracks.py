@@ -27,7 +27,6 @@ from photonflow.transport.tracks import (
     track_photons,
 )
 
-#: Mostly compiling: its programs are compiled unoptimised (tests/conftest.py).
 pytestmark = pytest.mark.compile_bound
 
 #: QE (%) of the SK 20-inch PMT vs wavelength (nm): shared/reference/physics.md section 4
