@@ -67,6 +67,11 @@ if _cache:
     os.environ["PHOTONFLOW_COMPILATION_CACHE"] = _cache
     jax.config.update("jax_compilation_cache_dir", _cache)
 
+# photonflow is imported only now, after the environment it reads on import is set
+from photonflow.garbage_collection import collect_less_often  # noqa: E402
+
+collect_less_often()  # as in the photonflow command: tracing ~20 % faster
+
 
 @pytest.fixture(autouse=True, scope="module")
 def _compile_effort(request):

@@ -92,6 +92,8 @@ def main() -> None:
     (``cli_errors.run_console``: usage errors as one line, exit 130 when interrupted)."""
     from .._startup import release
     from ..cli_errors import run_console
+    from ..garbage_collection import collect_less_often
 
     release()  # run_console handles interrupts from here on
+    collect_less_often()  # tracing ~20 % faster (photonflow.garbage_collection)
     run_console(app, prog_name="photonflow")
