@@ -22,6 +22,8 @@ from photonflow.errors import ConfigError
 from photonflow.transport.optics import TransportConfig
 from photonflow.transport.pseudo_data import sample_events
 
+pytestmark = pytest.mark.compile_bound
+
 CONFIG = TransportConfig(n_bounces=2, n_rays=256)
 FREE = ("absorption_length", "scattering_length")
 TRUTH = {"absorption_length": 30.0, "scattering_length": 20.0, "wall_reflectivity": 0.2}

@@ -32,6 +32,8 @@ from photonflow.transport.photon_loop import _alive_lanes, _wall_response
 from photonflow.transport.pseudo_data import sample, sample_events
 from photonflow.transport.sampled import sample_photons
 
+pytestmark = pytest.mark.compile_bound
+
 SPHERE = preset_detector("TOY_SPHERE")
 CYLINDER = preset_detector("TOY_CYLINDER")
 RADIUS = SPHERE.shape.radius

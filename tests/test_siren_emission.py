@@ -14,6 +14,8 @@ from photonflow.emission import SirenSettings, emission_model, fit_report, train
 from photonflow.emission.models import SHIPPED_NETWORKS, threshold_energy
 from photonflow.generator.emission_tables import shipped_table
 
+pytestmark = pytest.mark.compile_bound
+
 SMALL = SirenSettings(width=8, depth=2, steps=30, batch=512, checkpoint_every=15)
 
 
