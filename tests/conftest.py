@@ -1,6 +1,7 @@
 """Shared test settings: strict dtype promotion, XLA flags for a fast two-worker run,
-unoptimised compilation in compile-bound modules, no persistent compilation cache, a
-hypothesis profile for CI, and the slow modules first."""
+unoptimised compilation in compile-bound modules, no persistent compilation cache,
+Python's garbage collector run less often (as in the photonflow command), a hypothesis
+profile for CI, and the slow modules first."""
 
 import os
 import subprocess

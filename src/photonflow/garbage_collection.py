@@ -2,18 +2,15 @@
 programs.
 
 Tracing a program (``jit``, ``grad``, lowering to XLA) creates and drops millions of
-small Python objects. With Python's default thresholds, (700, 10, 10) allocations, the
-collector runs every few hundred of them and scans the young objects each time, which
-takes about a fifth of the tracing: the toy cylinder's expected mode with its gradient
-traced in 3.7 s and lowered in 1.05 s with the default thresholds, 3.0 s and 0.79 s
-with ``THRESHOLDS`` (one process each, 2-core Intel Xeon; XLA's compilation is not
-affected). Collections still run, only less often: objects in reference cycles are
-freed a little later.
+small Python objects. With Python's default thresholds, (700, 10, 10), the collector
+runs a young collection every 700 net allocations, which takes a sizeable share of the
+tracing (docs/performance.md has the measurement); XLA's compilation is not affected.
+With ``THRESHOLDS`` collections still run, only less often: objects in reference
+cycles are freed a little later.
 
 The ``photonflow`` command uses these thresholds (its process is its own); a library
 import leaves the interpreter's settings alone, and a user who wants the same can call
-``collect_less_often()`` (docs/performance.md). The test suite uses them in its worker
-processes.
+``collect_less_often()``. The test suite uses them in its worker processes.
 """
 
 from __future__ import annotations
