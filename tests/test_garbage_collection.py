@@ -5,30 +5,34 @@ import gc
 import subprocess
 import sys
 
+import pytest
+
 from photonflow import cli_errors, garbage_collection
 from photonflow.cli import root
 
+#: Python's own default thresholds.
+DEFAULTS = (700, 10, 10)
 
-def test_the_thresholds_are_set_and_the_previous_ones_returned():
+
+@pytest.fixture
+def default_thresholds():
+    """Python's default thresholds for the test; this process's own afterwards."""
     before = gc.get_threshold()
-    try:
-        gc.set_threshold(700, 10, 10)
-        assert garbage_collection.collect_less_often() == (700, 10, 10)
-        assert gc.get_threshold() == garbage_collection.THRESHOLDS
-    finally:
-        gc.set_threshold(*before)
+    gc.set_threshold(*DEFAULTS)
+    yield
+    gc.set_threshold(*before)
 
 
-def test_the_command_runs_with_the_relaxed_thresholds(monkeypatch):
+def test_the_thresholds_are_set_and_the_previous_ones_returned(default_thresholds):
+    assert garbage_collection.collect_less_often() == DEFAULTS
+    assert gc.get_threshold() == garbage_collection.THRESHOLDS
+
+
+def test_the_command_runs_with_the_relaxed_thresholds(default_thresholds, monkeypatch):
     seen = []
     monkeypatch.setattr(cli_errors, "run_console", lambda app, prog_name: seen.append(
         gc.get_threshold()))
-    before = gc.get_threshold()
-    try:
-        gc.set_threshold(700, 10, 10)
-        root.main()
-    finally:
-        gc.set_threshold(*before)
+    root.main()
     assert seen == [garbage_collection.THRESHOLDS]
 
 
