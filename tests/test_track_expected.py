@@ -164,6 +164,53 @@ def test_the_prediction_moves_smoothly_with_the_track(toy):
         np.testing.assert_allclose(change, linear, atol=0.02 * scale)
 
 
+def test_the_near_field_switches_on_without_a_step():
+    """The near field's sub-discs are computed only where some disc is within
+    ``NEAR_FROM`` of the track's light. A 10 MeV electron in WCTE (3-inch PMTs, light
+    over 4.6 cm) moved along x across the point where its nearest disc reaches that
+    nearness, float64: the light on either side of the switch joins (the total charge
+    and the charge-weighted time change as the trapezoid rule on their derivatives
+    says, within 1e-9) and its derivative,
+    forward and reverse mode, is the central difference on both sides (1e-6)."""
+    from photonflow.emission import emission_model
+    from photonflow.transport import track_direct
+
+    detector = pf.load_detector("WCTE")
+    with jax.enable_x64(True):
+        params = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), pf.default_params(detector))
+        sensors = sensors_for(detector, jnp.float64)
+        emission = emission_model("e-", "water", jnp.float64).at(10.0)
+        direction = jnp.array([1.0, 0.0, 0.0])
+
+        def nearest(x):
+            return float(jnp.max(track_direct.nearness(
+                sensors, jnp.array([x, 0.0, 0.0]), direction, emission.extent)))
+
+        low, high = 0.0, 0.5  # far at the centre, near 0.5 m towards the barrel
+        assert nearest(low) < track_direct.NEAR_FROM < nearest(high)
+        for _ in range(60):
+            middle = 0.5 * (low + high)
+            low, high = (low, middle) if nearest(middle) > track_direct.NEAR_FROM else (middle,
+                                                                                        high)
+
+        @jax.jit
+        def light(x):
+            charge, mean, _ = track_direct_light(sensors, params, jnp.stack([x, 0.0, 0.0]),
+                                                 direction, 0.0, emission)
+            return jnp.stack([jnp.sum(charge), jnp.sum(charge * mean)])
+
+        forward, reverse = jax.jit(jax.jacfwd(light)), jax.jit(jax.jacrev(light))
+        switch, gap, h = 0.5 * (low + high), 1e-5, 1e-6
+        before, after = np.asarray(light(switch - gap)), np.asarray(light(switch + gap))
+        slopes = np.asarray(forward(switch - gap)) + np.asarray(forward(switch + gap))
+        np.testing.assert_allclose(after - before, gap * slopes,  # the trapezoid rule
+                                   atol=1e-9 * np.abs(before).max())
+        for x in (switch - gap, switch + gap, switch - 1e-3, switch + 1e-3):
+            central = (np.asarray(light(x + h)) - np.asarray(light(x - h))) / (2 * h)
+            np.testing.assert_allclose(forward(x), central, rtol=1e-6)
+            np.testing.assert_allclose(reverse(x), central, rtol=1e-6)
+
+
 #: The optical and sensor fields of ``Params`` the track light depends on (scalars).
 OPTICS_FIELDS = ("absorption_length", "scattering_length", "mie_length", "mie_g",
                  "group_index", "wall_reflectivity", "wall_specular_fraction",

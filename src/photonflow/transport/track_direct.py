@@ -197,15 +197,22 @@ def refine_near_field(base, sensors: Sensors, near_by, light, near: int):
     """``base`` (charge, mean, variance) (N, C) of every disc with the ``near`` discs of
     largest ``near_by`` (``nearness``) blended into their sub-discs' light (``light``:
     ``disc_light_of``, on ``PANEL_BREAKS``) as their nearness rises from ``NEAR_FROM``
-    to ``NEAR_FULL`` (``top_blend``)."""
+    to ``NEAR_FULL`` (``top_blend``). When every weight is 0 (no disc within
+    ``NEAR_FROM`` of the track's light: a track far from the walls) the sub-discs are
+    not computed: the light and its derivatives are those of ``base`` either way, since
+    the blend's ramp starts flat (under ``vmap`` both are computed and one is kept)."""
     index, blend = top_blend(near_by, near, NEAR_FROM, NEAR_FULL - NEAR_FROM)
-    offsets, scale = _sub_disc_offsets(sensors.normals[index], sensors.radius[index])
-    subs = offsets.shape[1]
-    sub = light((sensors.positions[index][:, None, :] + offsets).reshape(-1, 3),
-                jnp.repeat(sensors.normals[index], subs, axis=0),
-                jnp.repeat(sensors.radius[index] * scale, subs), breaks=PANEL_BREAKS)
-    parts = [x.reshape(near, subs, -1) for x in sub]
-    return blend_into(base, index, mixed_moments(*parts, axis=1), blend)
+
+    def refined(base):
+        offsets, scale = _sub_disc_offsets(sensors.normals[index], sensors.radius[index])
+        subs = offsets.shape[1]
+        sub = light((sensors.positions[index][:, None, :] + offsets).reshape(-1, 3),
+                    jnp.repeat(sensors.normals[index], subs, axis=0),
+                    jnp.repeat(sensors.radius[index] * scale, subs), breaks=PANEL_BREAKS)
+        parts = [x.reshape(near, subs, -1) for x in sub]
+        return blend_into(base, index, mixed_moments(*parts, axis=1), blend)
+
+    return jax.lax.cond(jnp.any(blend > 0.0), refined, lambda base: base, base)
 
 
 def blend_into(base, index, other, blend):
