@@ -10,7 +10,9 @@ direct + indirect light
 moment tables (``emission_model="tables"``), and, as the reconstruction's fit stages
 evaluate it, with the tables and the indirect light held at the track
 (``held_indirect_function``: its hold timed apart; the batch of 64 traces rays, as
-the case before). Medians of 5 calls after compilation;
+the case before), the last also for the muon starting 10 m from the centre (its light
+ends 2.4 m from the barrel, where the nearest discs' sub-discs are computed: the near
+field, ``track_direct``). Medians of 5 calls after compilation;
 each case runs in its own process (peak memory is per case). Prints a Markdown table
 for BENCHMARKS.md.
 """
@@ -28,7 +30,8 @@ import time
 #: the sensors seen from afar read from moment tables (``emission_model="tables"``).
 CASES = {"direct": (0, "spline"), "direct + indirect": (2, "spline"),
          "direct, tables": (0, "tables"), "direct + indirect, tables": (2, "tables"),
-         "direct + held indirect, tables": (2, "tables", True)}
+         "direct + held indirect, tables": (2, "tables", True),
+         "direct + held indirect, tables, from (10, 0, 0) m": (2, "tables", True, 10.0)}
 
 
 def _median_seconds(function, repeats: int = 5) -> float:
@@ -44,10 +47,12 @@ def _median_seconds(function, repeats: int = 5) -> float:
     return float(np.median(times))
 
 
-def measure(bounces: int, emission_model: str = "spline", held: bool = False) -> dict:
+def measure(bounces: int, emission_model: str = "spline", held: bool = False,
+            start_x: float = 0.0) -> dict:
     """One case in this process: seconds and peak resident memory (MB). ``held``: the
     indirect light held at the track (``held_indirect_function``, as the reconstruction's
-    fit stages use it), its hold timed apart."""
+    fit stages use it), its hold timed apart. ``start_x``: the muon's start on the x axis
+    (m; it heads along +x)."""
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -59,7 +64,7 @@ def measure(bounces: int, emission_model: str = "spline", held: bool = False) ->
     params = pf.default_params(detector)
     config = pf.TransportConfig(n_bounces=bounces, n_rays=1024, emission_model=emission_model)
     predict = pf.expected_function(detector, config=config)
-    truth = pf.Track("mu-", [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], 1000.0, 0.0)
+    truth = pf.Track("mu-", [start_x, 0.0, 0.0], [1.0, 0.0, 0.0], 1000.0, 0.0)
     event = pf.sample(detector, params, truth, seed=1)
 
     def track_of(x):
@@ -68,7 +73,7 @@ def measure(bounces: int, emission_model: str = "spline", held: bool = False) ->
                                jnp.cos(x[4])])
         return pf.Track("mu-", x[:3], direction, jnp.exp(x[6]), x[3])
 
-    start = jnp.array([0.0, 0.0, 0.0, 0.0, 0.5 * np.pi, 0.0, np.log(1000.0)])
+    start = jnp.array([start_x, 0.0, 0.0, 0.0, 0.5 * np.pi, 0.0, np.log(1000.0)])
     light = None
     hold_s = None
     if held:
