@@ -165,13 +165,13 @@ def test_the_prediction_moves_smoothly_with_the_track(toy):
 
 
 def test_the_near_field_switches_on_without_a_step():
-    """The near field's sub-discs are computed only where some disc is within
-    ``NEAR_FROM`` of the track's light. A 10 MeV electron in WCTE (3-inch PMTs, light
-    over 4.6 cm) moved along x across the point where its nearest disc reaches that
-    nearness, float64: the light on either side of the switch joins (the total charge
-    and the charge-weighted time change as the trapezoid rule on their derivatives
-    says, within 1e-9) and its derivative,
-    forward and reverse mode, is the central difference on both sides (1e-6)."""
+    """The near field's sub-discs are computed only where some disc, seen from the
+    track's light, has an angular radius above ``NEAR_FROM``. A 10 MeV electron in WCTE
+    (3-inch PMTs, light over 4.6 cm) moved along x across the point where its nearest
+    disc reaches that angular radius, float64: the light on either side of the switch
+    joins (the total charge and the charge-weighted time change as the trapezoid rule
+    on their derivatives says, within 1e-9), and its derivative, forward and reverse
+    mode, is the central difference on both sides (1e-6)."""
     from photonflow.emission import emission_model
     from photonflow.transport import track_direct
 
@@ -188,10 +188,12 @@ def test_the_near_field_switches_on_without_a_step():
 
         low, high = 0.0, 0.5  # far at the centre, near 0.5 m towards the barrel
         assert nearest(low) < track_direct.NEAR_FROM < nearest(high)
-        for _ in range(60):
+        for _ in range(60):  # bisection for the switch
             middle = 0.5 * (low + high)
-            low, high = (low, middle) if nearest(middle) > track_direct.NEAR_FROM else (middle,
-                                                                                        high)
+            if nearest(middle) > track_direct.NEAR_FROM:
+                high = middle
+            else:
+                low = middle
 
         @jax.jit
         def light(x):

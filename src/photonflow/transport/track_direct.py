@@ -197,10 +197,11 @@ def refine_near_field(base, sensors: Sensors, near_by, light, near: int):
     """``base`` (charge, mean, variance) (N, C) of every disc with the ``near`` discs of
     largest ``near_by`` (``nearness``) blended into their sub-discs' light (``light``:
     ``disc_light_of``, on ``PANEL_BREAKS``) as their nearness rises from ``NEAR_FROM``
-    to ``NEAR_FULL`` (``top_blend``). When every weight is 0 (no disc within
-    ``NEAR_FROM`` of the track's light: a track far from the walls) the sub-discs are
-    not computed: the light and its derivatives are those of ``base`` either way, since
-    the blend's ramp starts flat (under ``vmap`` both are computed and one is kept)."""
+    to ``NEAR_FULL`` (``top_blend``). When every weight is 0 (no disc seen from the
+    track's light at an angular radius above ``NEAR_FROM``: a track far from the walls)
+    the sub-discs are not computed: the light and its derivatives are those of ``base``
+    either way, since the blend's ramp starts flat (under ``vmap`` both are computed and
+    one is kept)."""
     index, blend = top_blend(near_by, near, NEAR_FROM, NEAR_FULL - NEAR_FROM)
 
     def refined(base):
