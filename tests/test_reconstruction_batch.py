@@ -27,6 +27,7 @@ import pytest
 import photonflow as pf
 from photonflow.io import make_event, write_events
 from photonflow.io.reco_file import RecoTable, read_reco
+from photonflow.provenance import code_identity
 from photonflow.reconstruction.batch import reconstruct_events
 from photonflow.reconstruction.evaluation import contained_events, summarize
 
@@ -100,6 +101,7 @@ def rows_written(partial) -> int:
 def test_the_reference_job_records_every_event(folder):
     table = read_reco(folder / "reference.h5")
     assert len(table) == 4
+    assert table.run["code"] == code_identity()  # a resume must run the same code
     assert list(table.reco["event"]) == [0, 1, 2, 3]
     assert table.reco["failure"][2] == "no hits"
     assert all(f == "" for k, f in enumerate(table.reco["failure"]) if k != 2)

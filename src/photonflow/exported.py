@@ -11,11 +11,11 @@ process (docs/performance.md).
 
 An artifact is keyed by the program's name and static settings, the arguments' tree
 structure, shapes and dtypes, the JAX and jaxlib versions, the backend, the 64-bit
-mode and a hash of photonflow's source files, so a changed program never loads a stale
-artifact. Without a compilation-cache directory, or when anything about the artifact
-fails (unreadable, incompatible, not exportable), the plain jitted call runs: the
-results are the same either way (tested bit for bit). Written here because JAX keeps no
-cache of traced programs across processes.
+mode and a hash of photonflow's files (``provenance.source_hash``), so a changed
+program never loads a stale artifact. Without a compilation-cache directory, or when
+anything about the artifact fails (unreadable, incompatible, not exportable), the plain
+jitted call runs: the results are the same either way (tested bit for bit). Written here
+because JAX keeps no cache of traced programs across processes.
 """
 
 from __future__ import annotations
@@ -29,12 +29,13 @@ import jaxlib
 import numpy as np
 from jax import export as jax_export
 
+from .provenance import source_hash
+
 #: Subdirectory of the compilation-cache directory that holds the artifacts.
 SUBDIRECTORY = "photonflow-exported"
 
 #: Artifacts loaded or made by this process, by key.
 _LOADED: dict[str, jax_export.Exported] = {}
-_SOURCE_HASH: list[str] = []
 
 
 def artifact_directory() -> Path | None:
@@ -76,20 +77,8 @@ def _key(name: str, static, treedef, leaves) -> str:
               bool(getattr(getattr(leaf, "aval", None), "weak_type", False)))
              for leaf in leaves]
     parts = (name, repr(static), str(treedef), avals, jax.__version__, jaxlib.__version__,
-             jax.default_backend(), bool(jax.config.jax_enable_x64), _source_hash())
+             jax.default_backend(), bool(jax.config.jax_enable_x64), source_hash())
     return hashlib.sha256(repr(parts).encode()).hexdigest()
-
-
-def _source_hash() -> str:
-    """A hash of photonflow's Python source files (once per process)."""
-    if not _SOURCE_HASH:
-        digest = hashlib.sha256()
-        root = Path(__file__).resolve().parent
-        for path in sorted(root.rglob("*.py")):
-            digest.update(str(path.relative_to(root)).encode())
-            digest.update(path.read_bytes())
-        _SOURCE_HASH.append(digest.hexdigest())
-    return _SOURCE_HASH[0]
 
 
 def _load_or_export(path: Path, function, treedef, leaves) -> jax_export.Exported | None:

@@ -15,6 +15,7 @@ import typer
 
 from ..cli_errors import EXIT_INTERRUPTED, MAX_BOUNCES, check_count, max_workers
 from ..interrupts import terminate_as_interrupt
+from ..provenance import code_identity
 from ..reconstruction.settings import RecoSettings
 from ..transport.optics import TransportConfig, check_config
 from .root import console
@@ -156,7 +157,8 @@ def reconstruct(
                "emission_model": emission_model, "fits": fits, "restarts": restarts,
                "scan_directions": scan_directions, "max_iterations": max_iterations,
                "overdispersion": settings.overdispersion,
-               "variability_events": variability_events, "bias_correction": bias_correction}
+               "variability_events": variability_events, "bias_correction": bias_correction,
+               "code": code_identity()}
         writer = RecoWriter(out, detector, run, events_file=str(events.resolve()),
                             mode=mode, resume=resume)
         _run_job(writer, event_file, detector, detector_params, particle, method, config,
