@@ -14,7 +14,12 @@ from photonflow.generator import stack_tracks
 from photonflow.geometry.sensor_arrays import sensors_for
 from photonflow.response.detection import acceptance_at_cos
 from photonflow.transport.optics import interaction_rates
-from photonflow.transport.track_direct import DIRECT_COMPONENTS, track_direct_light
+from photonflow.transport.track_direct import (
+    DIRECT_COMPONENTS,
+    NEAR_FROM,
+    nearness,
+    track_direct_light,
+)
 from photonflow.transport.track_expected import _skewed_indirect
 
 pytestmark = pytest.mark.compile_bound
@@ -172,9 +177,6 @@ def test_the_near_field_switches_on_without_a_step():
     joins (the total charge and the charge-weighted time change as the trapezoid rule
     on their derivatives says, within 1e-9), and its derivative, forward and reverse
     mode, is the central difference on both sides (1e-6)."""
-    from photonflow.emission import emission_model
-    from photonflow.transport import track_direct
-
     detector = pf.load_detector("WCTE")
     with jax.enable_x64(True):
         params = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), pf.default_params(detector))
@@ -183,14 +185,14 @@ def test_the_near_field_switches_on_without_a_step():
         direction = jnp.array([1.0, 0.0, 0.0])
 
         def nearest(x):
-            return float(jnp.max(track_direct.nearness(
-                sensors, jnp.array([x, 0.0, 0.0]), direction, emission.extent)))
+            return float(jnp.max(nearness(sensors, jnp.array([x, 0.0, 0.0]), direction,
+                                          emission.extent)))
 
         low, high = 0.0, 0.5  # far at the centre, near 0.5 m towards the barrel
-        assert nearest(low) < track_direct.NEAR_FROM < nearest(high)
+        assert nearest(low) < NEAR_FROM < nearest(high)
         for _ in range(60):  # bisection for the switch
             middle = 0.5 * (low + high)
-            if nearest(middle) > track_direct.NEAR_FROM:
+            if nearest(middle) > NEAR_FROM:
                 high = middle
             else:
                 low = middle
