@@ -571,7 +571,7 @@ def test_the_scores_of_many_events_are_their_likelihood_gradients(toy):
     from photonflow.reconstruction import fit
     from photonflow.reconstruction.minimisers import local_value_and_grad, staged_data
     from photonflow.reconstruction.variability import sampled_scores
-    from photonflow.transport.pseudo_data import sample_events
+    from photonflow.transport.pseudo_data import sample_together
 
     detector, params = toy
     functions, model, data = fit_pieces(toy, pf.sample(detector, params, TRUTH, seed=3,
@@ -583,7 +583,7 @@ def test_the_scores_of_many_events_are_their_likelihood_gradients(toy):
     scores = sampled_scores(functions, detector, params, data, track, frame, n_events=3,
                             seed=4, config=CONFIG)
     point = np.asarray(local_from_track(track, jnp.float32), np.float64)
-    simulated = sample_events(detector, params, track, 4, 3, config=CONFIG)
+    simulated = sample_together(detector, params, [track] * 3, 4, config=CONFIG)
     for k, event in enumerate(simulated):
         own = dataclasses.replace(fit.event_data(detector, params, event, jnp.float32,
                                                  functions), emission=model, held=data.held)

@@ -25,7 +25,7 @@ from .errors import (
     PhotonflowError,
     SensorFileError,
 )
-from .generator import Photons, Track, generate
+from .generator import Photons, Track, generate, generate_together
 from .geometry import Box, Cylinder, Detector, OpenMedium, Sphere, make_detector
 from .geometry.presets import preset_table
 from .io import Event, Truth
@@ -34,7 +34,14 @@ from .likelihood import nll, sensor_nll
 from .params import Params, default_params
 from .prediction import Prediction
 from .sources import DiffuserSource, IsotropicSource, LaserSource
-from .transport import TransportConfig, expected, expected_function, sample, sample_events
+from .transport import (
+    TransportConfig,
+    expected,
+    expected_function,
+    sample,
+    sample_events,
+    sample_together,
+)
 
 configure_from_environment()  # persistent compilation cache (photonflow.compilation_cache)
 
@@ -95,6 +102,7 @@ __all__ = [
     "expected",
     "expected_function",
     "generate",
+    "generate_together",
     "load_config",
     "load_detector",
     "load_params",
@@ -105,6 +113,7 @@ __all__ = [
     "reconstruct",
     "sample",
     "sample_events",
+    "sample_together",
     "sensor_nll",
     "write_events",
 ]

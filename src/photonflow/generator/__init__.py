@@ -6,7 +6,7 @@ Units: positions m, times ns, energies MeV (kinetic), wavelengths nm. See
 ``docs/generator.md`` for the physics models, the energy accounting and the validation.
 """
 
-from .generate import Photons, Process, generate
+from .generate import Photons, Process, generate, generate_together
 from .materials import LAB, WATER, Material, refractive_index, water_based_scintillator
 from .records import Deposits, EnergyBudget, Steps, Tracks
 from .settings import GeneratorSettings
@@ -25,6 +25,7 @@ __all__ = [
     "Track",
     "Tracks",
     "generate",
+    "generate_together",
     "refractive_index",
     "stack_tracks",
     "water_based_scintillator",

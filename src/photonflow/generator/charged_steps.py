@@ -169,7 +169,7 @@ class _ChargedSteps(_EventState):
             specific = np.where(step > 0, loss / (self.material.density * step), 0.0)
         visible = loss / (1.0 + kb1 * specific + kb2 * specific**2)
         self.deposit(stack.position, end_position, stack.time, end_time, loss, visible, stack.track)
-        self.deposited += float(np.sum(loss))
+        self.deposited += self.per_event(stack.track, loss)
 
     def _knock_on(self, stack: Stack, which: np.ndarray) -> Stack:
         """Knock-on electrons from the particles at indices ``which`` of ``stack``."""

@@ -1,6 +1,8 @@
-"""The state of one event under transport (``transport.py``): ``_EventState`` holds the
-event's records (steps, deposits, tracks, energy budget) and the particles waiting to be
-transported, and creates and ends particles; ``TransportResult`` is what it hands back.
+"""The state of the events under transport (``transport.py``): ``_EventState`` holds
+their records (steps, deposits, tracks, energy budgets) and the particles waiting to be
+transported, and creates and ends particles; ``TransportResult`` is what it hands back
+for each event. Several independent events share the stacks (every track knows its
+event), so that numpy's per-call cost is paid once per step for all of them.
 
 A particle below its tracking cut deposits its residual kinetic energy on the spot;
 positrons then annihilate at rest into two back-to-back 0.511 MeV photons; muons decay
@@ -35,14 +37,19 @@ class TransportResult:
 
 
 class _EventState:
-    """Mutable accumulator of one event's records while it is transported; the charged
-    steps (``charged_steps.py``) and the photon interactions (``photon_interactions.py``)
-    are its subclasses' methods, joined in ``transport._Event``."""
+    """Mutable accumulator of the records of ``n_events`` events while they are
+    transported; the charged steps (``charged_steps.py``) and the photon interactions
+    (``photon_interactions.py``) are its subclasses' methods, joined in
+    ``transport._Event``. Track ids are global while transporting (``event_of`` maps
+    them to events) and per event in the results."""
 
     def __init__(
-        self, material: Material, tables: PhysicsTables, rng: np.random.Generator, muon_decay: bool
+        self, material: Material, tables: PhysicsTables, rng: np.random.Generator, muon_decay: bool,
+        n_events: int = 1,
     ):
         self.material, self.tables, self.rng, self.muon_decay = material, tables, rng, muon_decay
+        self.n_events = n_events
+        self._event_of = np.empty(64, dtype=np.int64)
         self.steps: dict[str, list[np.ndarray]] = {f.name: [] for f in dataclasses.fields(Steps)}
         self.deposits: dict[str, list[np.ndarray]] = {
             f.name: [] for f in dataclasses.fields(Deposits)
@@ -51,16 +58,35 @@ class _EventState:
         self.track_parent: list[np.ndarray] = []
         self.track_energy: list[np.ndarray] = []
         self.next_track = 0
-        self.deposited = self.below_cut = self.escaping = self.rest_mass = 0.0
+        self.deposited, self.below_cut, self.escaping, self.rest_mass = (
+            np.zeros(n_events) for _ in range(4))
         self.new_charged: list[Stack] = []
         self.new_photons: list[Stack] = []
 
     # ---- bookkeeping ------------------------------------------------------------------
 
-    def register(self, species, energy, parent) -> np.ndarray:
-        """Give new tracks consecutive ids and record them."""
+    @property
+    def event_of(self) -> np.ndarray:
+        """(tracks,) the event of every track id registered so far."""
+        return self._event_of[: self.next_track]
+
+    def per_event(self, track, amount=1.0) -> np.ndarray:
+        """(n_events,) sums of ``amount`` (a scalar or one per entry of ``track``, the
+        track ids) by event."""
+        weights = np.broadcast_to(np.asarray(amount, np.float64), np.shape(track))
+        return np.bincount(self.event_of[track], weights, minlength=self.n_events)
+
+    def register(self, species, energy, parent, event=None) -> np.ndarray:
+        """Give new tracks consecutive ids and record them, in the event of their
+        ``parent`` (a track id), or ``event`` for primaries (``parent`` -1)."""
         count = energy.size
         ids = np.arange(self.next_track, self.next_track + count, dtype=np.int64)
+        events = self.event_of[parent] if event is None else np.full(count, event, np.int64)
+        if self.next_track + count > self._event_of.size:
+            grown = np.empty(2 * (self.next_track + count), dtype=np.int64)
+            grown[: self.next_track] = self.event_of
+            self._event_of = grown
+        self._event_of[self.next_track : self.next_track + count] = events
         self.next_track += count
         self.track_species.append(np.asarray(species, dtype=np.int64))
         self.track_parent.append(np.asarray(parent, dtype=np.int64))
@@ -87,14 +113,15 @@ class _EventState:
         visible = self.tables.charged(self.tables.quenched_energy, code, np.maximum(energy, 1e-9))
         visible = np.where(energy > 0, np.minimum(visible, energy), 0.0)
         self.deposit(position, position, time, time, energy, visible, track)
-        self.below_cut += float(np.sum(energy))
+        self.below_cut += self.per_event(track, energy)
 
     # ---- creating particles -------------------------------------------------------------
 
-    def spawn_charged(self, species, position, direction, energy, time, parent):
-        """New e-/e+/mu: tracked if above their cut, else deposited (positrons annihilate)."""
+    def spawn_charged(self, species, position, direction, energy, time, parent, event=None):
+        """New e-/e+/mu: tracked if above their cut, else deposited (positrons annihilate);
+        ``event`` for primaries (``register``)."""
         species = np.asarray(species, dtype=np.int64) * np.ones(energy.size, dtype=np.int64)
-        ids = self.register(species, energy, parent)
+        ids = self.register(species, energy, parent, event)
         tracked = energy >= self.tables.stop_energy[species]
         if np.any(tracked):
             self.new_charged.append(
@@ -112,9 +139,10 @@ class _EventState:
             species[~tracked], position[~tracked], energy[~tracked], time[~tracked], ids[~tracked]
         )
 
-    def spawn_photons(self, position, direction, energy, time, parent):
-        """New photons: tracked above the photon cut, else absorbed on the spot."""
-        ids = self.register(np.full(energy.size, Species.GAMMA), energy, parent)
+    def spawn_photons(self, position, direction, energy, time, parent, event=None):
+        """New photons: tracked above the photon cut, else absorbed on the spot; ``event``
+        for primaries (``register``)."""
+        ids = self.register(np.full(energy.size, Species.GAMMA), energy, parent, event)
         self._continue_photons(position, direction, energy, time, ids)
 
     def finish_charged(self, species, position, energy, time, track):
@@ -123,7 +151,7 @@ class _EventState:
         positron = species == Species.POSITRON
         if np.any(positron):
             count = int(positron.sum())
-            self.rest_mass += 2.0 * ELECTRON_MASS * count
+            self.rest_mass += self.per_event(track[positron], 2.0 * ELECTRON_MASS)
             axis = isotropic(self.rng, count)
             where, when = position[positron], time[positron]
             self.spawn_photons(
@@ -137,8 +165,8 @@ class _EventState:
         if self.muon_decay and np.any(muon):
             count = int(muon.sum())
             total = sample_michel_energy(self.rng, count)
-            self.rest_mass += (MUON_MASS - ELECTRON_MASS) * count
-            self.escaping += float(np.sum(MUON_MASS - total))
+            self.rest_mass += self.per_event(track[muon], MUON_MASS - ELECTRON_MASS)
+            self.escaping += self.per_event(track[muon], MUON_MASS - total)
             lepton = np.where(
                 species[muon] == Species.MUON_MINUS, Species.ELECTRON, Species.POSITRON
             )
@@ -180,7 +208,10 @@ class _EventState:
         self.new_charged, self.new_photons = [], []
         return charged, photons
 
-    def result(self, initial: float) -> TransportResult:
+    def result(self, initial) -> list[TransportResult]:
+        """Each event's ``TransportResult`` (``initial``: (n_events,) the primaries'
+        kinetic energies, MeV), its track ids counted from 0 (the primary) in the order
+        they were given."""
         steps = Steps(
             start=concatenate_rows(self.steps["start"], 3),
             direction=concatenate_rows(self.steps["direction"], 3),
@@ -199,19 +230,46 @@ class _EventState:
                 for name, chunks in self.deposits.items()
             }
         )
-        species = concatenate_rows(self.track_species, None, np.int64)
-        length = np.bincount(steps.track, weights=steps.length, minlength=species.size)
         tracks = Tracks(
-            particle=species,
+            particle=concatenate_rows(self.track_species, None, np.int64),
             parent=concatenate_rows(self.track_parent, None, np.int64),
             energy=concatenate_rows(self.track_energy, None),
-            length=length,
+            length=np.empty(0),
+        )
+        event_of = self.event_of
+        # a track's id within its event: its rank among that event's ids
+        local = np.empty(event_of.size, dtype=np.int64)
+        for event in range(self.n_events):
+            own = event_of == event
+            local[own] = np.arange(int(own.sum()))
+        initial = np.broadcast_to(np.asarray(initial, np.float64), (self.n_events,))
+        return [self._one_event(event, steps, deposits, tracks, local, float(initial[event]))
+                for event in range(self.n_events)]
+
+    def _one_event(self, event, steps, deposits, tracks, local, initial) -> TransportResult:
+        """The records of ``event`` with its own track ids (``local``)."""
+        def select(records, rows):
+            changed = {"track": local[records.track[rows]]} if hasattr(records, "track") else {}
+            kept = {f.name: getattr(records, f.name)[rows] for f in dataclasses.fields(records)}
+            return type(records)(**{**kept, **changed})
+
+        event_of = self.event_of
+        steps = select(steps, event_of[steps.track] == event)
+        deposits = select(deposits, event_of[deposits.track] == event)
+        own = event_of == event
+        parent = tracks.parent[own]
+        species = tracks.particle[own]
+        event_tracks = Tracks(
+            particle=species,
+            parent=np.where(parent >= 0, local[np.maximum(parent, 0)], -1),
+            energy=tracks.energy[own],
+            length=np.bincount(steps.track, weights=steps.length, minlength=species.size),
         )
         budget = EnergyBudget(
             initial=initial,
-            rest_mass_released=self.rest_mass,
-            deposited=self.deposited,
-            below_cut=self.below_cut,
-            escaping=self.escaping,
+            rest_mass_released=float(self.rest_mass[event]),
+            deposited=float(self.deposited[event]),
+            below_cut=float(self.below_cut[event]),
+            escaping=float(self.escaping[event]),
         )
-        return TransportResult(steps=steps, deposits=deposits, tracks=tracks, budget=budget)
+        return TransportResult(steps=steps, deposits=deposits, tracks=event_tracks, budget=budget)

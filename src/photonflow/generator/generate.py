@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
@@ -100,30 +101,67 @@ def generate(
         :class:`Photons`: Cherenkov photons (band ``settings.band``) then scintillation
         photons, with the event's deposits, tracks and energy budget.
     """
-    if not isinstance(track, Track):
-        raise ConfigError(f"track must be a photonflow.generator.Track, got {format_value(track)}")
+    return next(generate_together([track], seed, medium, settings, **changes))
+
+
+def generate_together(
+    tracks: Sequence[Track],
+    seed: int | np.random.SeedSequence,
+    medium: str | Material = "water",
+    settings: GeneratorSettings | None = None,
+    **changes,
+) -> Iterator[Photons]:
+    """The photons of several primaries as independent events, generated together.
+
+    Every event's particles advance in one stack, so numpy's per-call cost (most of a
+    muon's generation time) is paid once per step for all of them: 16 muons of 1 GeV
+    take about as many steps as one. The events are as independent and as distributed
+    as those of ``generate`` each with its own seed, but they are other events: they
+    depend on ``seed`` and on the whole list (the same list and seed give the same
+    events). Arguments and units as in ``generate``; input is checked at the call, the
+    particles are transported at the first event asked for, and each event's photons
+    are made as it is asked for.
+
+    Returns:
+        an iterator of :class:`Photons`, one per track, in order.
+    """
+    tracks = list(tracks)
+    for k, track in enumerate(tracks):
+        if not isinstance(track, Track):
+            where = "track" if len(tracks) == 1 else f"tracks[{k}]"
+            raise ConfigError(
+                f"{where} must be a photonflow.generator.Track, got {format_value(track)}"
+            )
+        if np.ndim(track.energy) != 0:
+            raise ConfigError(f"tracks[{k}] is a batch of {np.size(track.energy)} tracks:"
+                              " give one Track per event")
     settings = resolve_settings(settings, changes)
     material = resolve_material(medium)
-    rng = np.random.default_rng(seed)
+    return _generated(tracks, np.random.default_rng(seed), material, settings)
+
+
+def _generated(tracks, rng, material, settings) -> Iterator[Photons]:
+    """``generate_together`` after its checks."""
     tables = build_tables(
         material, electron_cut_for(material, settings), settings.photon_cut, settings.muon_cut
     )
-    result = transport(
-        PARTICLES[track.particle].species,
-        np.asarray(track.position) * CM_PER_M,
-        np.asarray(track.direction),
-        track.energy,
-        track.time,
+    results = transport(
+        [PARTICLES[track.particle].species for track in tracks],
+        np.array([track.position for track in tracks], dtype=np.float64) * CM_PER_M,
+        np.array([track.direction for track in tracks], dtype=np.float64),
+        [track.energy for track in tracks],
+        [track.time for track in tracks],
         material,
         tables,
         settings,
         rng,
     )
     spectrum = cherenkov_spectrum(material, settings.band)
-    cherenkov = cherenkov_photons(rng, spectrum, result.steps, settings.yield_scale)
-    deposits = _deposits_in_metres(result.deposits)
-    scintillation = scintillation_photons(rng, material, deposits, settings.yield_scale)
-    return _assemble(cherenkov, scintillation, deposits, result)
+    for result in results:
+        cherenkov = cherenkov_photons(rng, spectrum, result.steps, settings.yield_scale)
+        deposits = _deposits_in_metres(result.deposits)
+        scintillation = scintillation_photons(rng, material, deposits, settings.yield_scale)
+        yield _assemble(cherenkov, scintillation, deposits, result)
 
 
 def _deposits_in_metres(deposits: Deposits) -> Deposits:

@@ -52,7 +52,7 @@ class _PhotonInteractions(_EventState):
 
         if np.any(converts):
             k = energy[converts]
-            self.rest_mass -= 2.0 * ELECTRON_MASS * k.size
+            self.rest_mass -= self.per_event(stack.track[converts], 2.0 * ELECTRON_MASS)
             positron_share = sample_positron_fraction(rng, self.material, k)
             totals = np.concatenate([positron_share * k, (1.0 - positron_share) * k])
             cos_theta = sample_emission_polar(rng, totals)

@@ -1,4 +1,4 @@
-"""Condensed-history transport of a particle and all its secondaries (vectorised stacks).
+"""Condensed-history transport of particles and all their secondaries (vectorised stacks).
 
 All live charged particles advance one step per iteration, and all live photons make one
 interaction, so numpy works on whole stacks; the loop ends when both stacks are empty.
@@ -28,29 +28,34 @@ class _Event(_ChargedSteps, _PhotonInteractions):
 
 
 def transport(
-    primary_species: Species,
+    primary_species,
     position_cm: np.ndarray,
     direction: np.ndarray,
-    energy: float,
-    time: float,
+    energy,
+    time,
     material: Material,
     tables: PhysicsTables,
     settings,
     rng: np.random.Generator,
-) -> TransportResult:
-    """Transport one primary (kinetic ``energy`` MeV, position cm, time ns) to completion."""
-    event = _Event(material, tables, rng, settings.muon_decay)
-    start = (
-        np.asarray([position_cm], dtype=np.float64),
-        np.asarray([direction], dtype=np.float64),
-        np.array([energy]),
-        np.array([time]),
-        np.array([-1]),
-    )
-    if primary_species == Species.GAMMA:
-        event.spawn_photons(*start)
-    else:
-        event.spawn_charged(primary_species, *start)
+) -> list[TransportResult]:
+    """Transport primaries to completion, each with its secondaries as one event:
+    ``primary_species`` (n,) ``Species`` codes, ``position_cm`` (n, 3) cm, ``direction``
+    (n, 3), kinetic ``energy`` (n,) MeV and ``time`` (n,) ns. All events advance together
+    (one stack); returns their ``TransportResult``s in order, the same for the same
+    primaries and ``rng`` state."""
+    species = np.atleast_1d(np.asarray(primary_species, dtype=np.int64))
+    position_cm = np.asarray(position_cm, dtype=np.float64).reshape(-1, 3)
+    direction = np.asarray(direction, dtype=np.float64).reshape(-1, 3)
+    energy = np.atleast_1d(np.asarray(energy, dtype=np.float64))
+    time = np.atleast_1d(np.asarray(time, dtype=np.float64))
+    event = _Event(material, tables, rng, settings.muon_decay, n_events=species.size)
+    for k, code in enumerate(species):
+        start = (position_cm[k : k + 1], direction[k : k + 1], energy[k : k + 1],
+                 time[k : k + 1], np.array([-1]))
+        if code == Species.GAMMA:
+            event.spawn_photons(*start, event=k)
+        else:
+            event.spawn_charged(code, *start, event=k)
     charged_parts, photon_parts = event.drain_new()
     charged = Stack.join(charged_parts) if charged_parts else Stack.empty()
     photons = Stack.join(photon_parts) if photon_parts else Stack.empty()

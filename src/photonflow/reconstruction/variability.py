@@ -30,7 +30,7 @@ import numpy as np
 from ..generator.track import Track
 from ..likelihood import dense_sensor_nll, hit_arrays
 from ..threads import host_cores
-from ..transport.pseudo_data import sample_events
+from ..transport.pseudo_data import sample_together
 from .coordinates import fit_frame, local_from_track, track_from_local
 from .minimisers import cast_track, staged_data
 from .settings import MIN_VARIABILITY_EVENTS
@@ -92,7 +92,8 @@ def sampled_scores(functions, detector, params, data, track: Track, frame, *,
                    n_events: int, seed: int, config, threads: int | None = None) -> np.ndarray:
     """(n_events, 7) scores (gradients of -log L in ``LOCAL`` coordinates: per m, per ns,
     per rad, per unit of ln E; float64) at
-    ``track`` of events simulated at ``track`` by the generator and the sampled mode with
+    ``track`` of events simulated at ``track`` by the generator (all together:
+    ``pseudo_data.sample_together``) and the sampled mode with
     ``params`` and ``config`` (the readout of the fit's likelihood), read with the fit's
     ``data`` (its emission model and held indirect light at ``track``) about ``frame``
     (``coordinates.fit_frame`` at the track's direction); the events simulated on
@@ -100,8 +101,8 @@ def sampled_scores(functions, detector, params, data, track: Track, frame, *,
     dtype = data.charge.dtype
     threads = host_cores() if threads is None else threads
     with jax.enable_x64(False):  # the sampled mode's own precision, as for any event
-        events = list(sample_events(detector, params, track, seed, n_events,
-                                    config=config, threads=threads))
+        events = sample_together(detector, params, [track] * n_events, seed, config=config,
+                                 threads=threads)
     dense = [hit_arrays(event, detector.n_sensors, dtype) for event in events]
     hit, charge, time = (jnp.stack(column) for column in zip(*dense, strict=True))
     point = local_from_track(track, dtype)

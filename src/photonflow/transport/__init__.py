@@ -8,7 +8,7 @@ from .direct import direct_light, direct_light_jit, interpolate_acceptance
 from .expected import expected, expected_function, sensor_light
 from .optics import TransportConfig
 from .production import produce_events
-from .pseudo_data import sample, sample_events
+from .pseudo_data import sample, sample_events, sample_together
 from .sampled import sample_photon_bundle, sample_photons
 from .tracks import PhotonBundle, random_tracks
 
@@ -27,6 +27,7 @@ __all__ = [
     "random_tracks",
     "sample",
     "sample_events",
+    "sample_together",
     "sample_photon_bundle",
     "sample_photons",
     "sensor_light",

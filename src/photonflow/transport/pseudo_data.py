@@ -31,7 +31,14 @@ from .sampled import (
     sample_photon_bundle,
     sample_photons,
 )
-from .tracks import check_track, spectral_params, track_light, track_photons, track_truth
+from .tracks import (
+    check_track,
+    spectral_params,
+    track_light,
+    track_photons,
+    track_photons_together,
+    track_truth,
+)
 
 _SOURCE_KINDS = {IsotropicSource: "isotropic", LaserSource: "laser", DiffuserSource: "diffuser"}
 
@@ -74,28 +81,43 @@ def sample_track_tally(detector: Detector, params: Params, track: Track, key, se
                        grid=None):
     """The photoelectrons of event ``index`` of ``seed`` of a particle ``track``: its
     photons from the generator (``tracks.track_photons``) followed through the detector
-    with ``key`` (``sampled.sample_photon_bundle``; ``light``: ``tracks.track_light``
-    of the detector). Returns the ``PhotonTally`` (p.e. per sensor, photon times ns,
-    before the charge response)."""
-    return sample_photon_bundle(
-        detector, spectral_params(params, light),
-        track_photons(detector, track, seed, index, light), key,
-        source_time=track.time, config=config, grid=grid,
-    )
+    with ``key`` (``bundle_tally``; ``light``: ``tracks.track_light`` of the detector).
+    Returns the ``PhotonTally`` (p.e. per sensor, photon times ns, before the charge
+    response)."""
+    return bundle_tally(detector, params, track, track_photons(detector, track, seed, index, light),
+                        key, light, config=config, grid=grid)
+
+
+def bundle_tally(detector: Detector, params: Params, track: Track, bundle, key, light, *,
+                 config: TransportConfig = DEFAULT_CONFIG, grid=None):
+    """The photoelectrons of a track's generated photons ``bundle`` (a ``PhotonBundle``
+    of ``tracks.track_photons``), followed through the detector with ``key``
+    (``sampled.sample_photon_bundle``, the QE raised by ``tracks.spectral_params``).
+    Returns the ``PhotonTally``."""
+    return sample_photon_bundle(detector, spectral_params(params, light), bundle, key,
+                                source_time=track.time, config=config, grid=grid)
 
 
 def _event(detector, params, source, seed, index, config, grid, light) -> Event:
     """Event ``index`` of ``seed``: transport and response keys split from
     ``fold_in(PRNGKey(seed), index)``; a track's photons from ``track_photons``."""
-    transport_key, response_key = event_keys(seed, index)
     if isinstance(source, Track):
-        tally = sample_track_tally(detector, params, source, transport_key, seed, index,
-                                   light, config=config, grid=grid)
-        truth = track_truth(source, seed)
-    else:
-        tally = sample_photons(detector, params, source, transport_key, config=config, grid=grid)
-        truth = source_truth(source, seed)
-    return photoelectrons_to_event(tally, params, response_key, config=config, truth=truth)
+        bundle = track_photons(detector, source, seed, index, light)
+        return _track_event(detector, params, source, bundle, seed, index, config, grid, light)
+    transport_key, response_key = event_keys(seed, index)
+    tally = sample_photons(detector, params, source, transport_key, config=config, grid=grid)
+    return photoelectrons_to_event(tally, params, response_key, config=config,
+                                   truth=source_truth(source, seed))
+
+
+def _track_event(detector, params, track, bundle, seed, index, config, grid, light) -> Event:
+    """Event ``index`` of ``seed`` of ``track`` from its generated photons ``bundle``:
+    the keys of ``_event``."""
+    transport_key, response_key = event_keys(seed, index)
+    tally = bundle_tally(detector, params, track, bundle, transport_key, light, config=config,
+                         grid=grid)
+    return photoelectrons_to_event(tally, params, response_key, config=config,
+                                   truth=track_truth(track, seed))
 
 
 def _check_any_source(source, detector: Detector) -> None:
@@ -191,3 +213,40 @@ def sample_events(
         lambda pair: _event(detector, params, pair[1], seed, pair[0], config, grid, light),
         enumerate(sources, start=int(first_event)), threads)
     yield from with_progress(events, "sampling events", total=int(n_events), show=progress)
+
+
+def sample_together(
+    detector: Detector,
+    params: Params,
+    tracks,
+    seed: int,
+    *,
+    config: TransportConfig = DEFAULT_CONFIG,
+    medium: str | None = None,
+    generator: GeneratorSettings | None = None,
+    threads: int = 1,
+) -> list[Event]:
+    """Monte Carlo events of several particle ``tracks``, one event each, whose particles
+    the generator transports together (``generator.generate_together``: 16 muons of 1 GeV
+    in about a third of the time they take one at a time), each event's photons then
+    followed and read out as in ``sample_events``.
+
+    Event k uses the transport and response keys of event k of ``seed``. The events are
+    independent and distributed as ``sample_events``' but are not the same events (the
+    generator's random numbers are shared by the list): the same tracks and seed give the
+    same events. ``medium``, ``generator`` and ``threads`` as in ``sample_events``;
+    input is validated first (``ConfigError``, one line). Positions m, times ns, charges
+    p.e.
+    """
+    tracks = list(tracks)
+    for k, track in enumerate(tracks):
+        if not isinstance(track, Track):
+            raise ConfigError(f"tracks[{k}] = {format_value(track)}: must be a photonflow.Track")
+    if not isinstance(threads, numbers.Integral) or isinstance(threads, bool) or threads < 1:
+        raise ConfigError(f"threads = {format_value(threads)}: must be an integer >= 1")
+    seed, grid, light = _prepare(detector, params, tracks, seed, config, medium, generator)
+    bundles = track_photons_together(detector, tracks, seed, light)
+    return list(ordered_map(
+        lambda k: _track_event(detector, params, tracks[k], bundles[k], seed, k, config, grid,
+                               light),
+        range(len(tracks)), threads))

@@ -13,13 +13,14 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
 
 from ..config.loader import DEFAULT_MEDIUM
 from ..errors import ConfigError, format_value
-from ..generator import GeneratorSettings, Track, generate
+from ..generator import GeneratorSettings, Track, generate, generate_together
 from ..geometry.detector import Detector
 from ..geometry.presets import PRESETS
 from ..io.events import Truth
@@ -87,11 +88,37 @@ def track_photons(
     detector: Detector, track: Track, seed: int, index: int, light: TrackLight
 ) -> PhotonBundle:
     """The generated photons of ``track`` (event ``index`` of ``seed``) that the
-    single-wavelength transport follows: those emitted inside the detector (light made
-    beyond the wall is dropped), each kept with ``spectral_keep_probability`` of its
-    wavelength for ``light.sensor``."""
+    single-wavelength transport follows (``detector_bundle``)."""
     generator_seed, thinning_seed, _ = event_seeds(seed, index)
     photons = generate(track, generator_seed, medium=light.medium, settings=light.settings)
+    return detector_bundle(detector, photons, thinning_seed, light)
+
+
+def together_seed(seed: int) -> np.random.SeedSequence:
+    """The generator's ``SeedSequence`` for tracks generated together
+    (``track_photons_together``): a child of ``seed`` that no single event uses."""
+    return np.random.SeedSequence(seed, spawn_key=(0, 0))
+
+
+def track_photons_together(
+    detector: Detector, tracks: Sequence[Track], seed: int, light: TrackLight
+) -> list[PhotonBundle]:
+    """``track_photons`` of several tracks, one event each, from one run of the generator
+    (``generator.generate_together``, seeded by ``together_seed``; event k thinned with
+    the seed of event k of ``seed``): independent events, but not those of
+    ``track_photons``."""
+    photons = generate_together(tracks, together_seed(seed), medium=light.medium,
+                                settings=light.settings)
+    return [detector_bundle(detector, event, event_seeds(seed, k)[1], light)
+            for k, event in enumerate(photons)]
+
+
+def detector_bundle(detector: Detector, photons, thinning_seed, light: TrackLight
+                    ) -> PhotonBundle:
+    """The generator's ``photons`` that the single-wavelength transport follows: those
+    emitted inside the detector (light made beyond the wall is dropped), each kept with
+    ``spectral_keep_probability`` of its wavelength for ``light.sensor`` (uniforms from
+    ``thinning_seed``)."""
     inside = inside_detector(detector, photons.position)
     keep_probability = spectral_keep_probability(light.sensor, photons.wavelength)
     kept = inside & (np.random.default_rng(thinning_seed).random(len(photons)) < keep_probability)
