@@ -9,6 +9,7 @@ gave before), write no event file, and leave either nothing or a partial file th
 holds the events it reports and that ``--resume`` finishes.
 """
 
+import json
 import re
 import signal
 import subprocess
@@ -17,6 +18,8 @@ import time
 
 import h5py
 import pytest
+
+from photonflow.provenance import code_identity
 
 #: Enough events that the run outlasts the longest delay (4.5 s): 1,000 finished within
 #: it on a fast 2-core AMD EPYC (2026-11-27), which exited 0 before the SIGTERM.
@@ -122,6 +125,8 @@ def test_kill_after_events_keeps_a_partial_file_that_resume_finishes(tmp_path):
     assert not partial.exists()
     with h5py.File(tmp_path / "run.h5", "r") as h5:
         assert int(h5["events"].attrs["n_events"]) == EVENTS
+        # the run was made by this code, which a resume must match
+        assert json.loads(h5.attrs["run"])["code"] == code_identity()
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["int", "term"])

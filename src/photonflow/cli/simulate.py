@@ -118,13 +118,15 @@ def _check_simulate_options(context, particle, source, vertex, events, bounces, 
 def _event_writer(out, setup, settings, *, seed, events, bounces, mode, resume):
     """The ``EventWriter`` of ``simulate`` (``--out``, ``--mode``, ``--resume``), after
     checking the detector's parameters; ``settings`` (the light's) gain the run's seed,
-    event count, bounces, medium and photonflow version, which the file records."""
+    event count, bounces, medium, photonflow version and code identity, which the file
+    records (a resumed run must be made by the same code)."""
     from ..io import EventWriter
     from ..params import validate_params
+    from ..provenance import code_identity
 
     validate_params(setup.params, setup.detector.n_sensors)
     settings.update(seed=seed, n_events=events, bounces=bounces, medium=setup.medium,
-                    photonflow_version=__version__)
+                    photonflow_version=__version__, code=code_identity())
     return EventWriter(out, setup.detector, setup.params, mode=mode, chunk_events=100,
                        run=settings, resume=resume)
 
