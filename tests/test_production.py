@@ -207,6 +207,19 @@ def test_two_workers_write_the_same_file_as_a_serial_run(tmp_path):
     assert_same_events(tmp_path / "serial.h5", tmp_path / "parallel.h5")
 
 
+def test_a_local_cluster_collects_garbage_as_the_command_does():
+    """The workers of ``--workers`` trace programs as the command does: Python's
+    collector with ``garbage_collection.THRESHOLDS`` (the default (700, 10, 10) traces
+    ~20 % slower)."""
+    import gc
+
+    from photonflow.cluster import dask_client
+    from photonflow.garbage_collection import THRESHOLDS
+
+    with dask_client(workers=1) as client:
+        assert list(client.run(gc.get_threshold).values()) == [THRESHOLDS]
+
+
 def test_existing_cluster_gives_per_event_sources_in_order(toy):
     """``--scheduler``'s path, with per-event sources cut into uneven blocks and a run
     that starts part way (as a resumed one does)."""

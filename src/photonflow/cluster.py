@@ -13,6 +13,7 @@ import signal
 from collections.abc import Callable, Iterable, Iterator
 
 from .errors import ConfigError, format_value
+from .garbage_collection import collect_less_often
 
 #: Blocks kept in flight per worker (bounds the parent's memory for out-of-order blocks).
 BLOCKS_PER_WORKER = 4
@@ -29,7 +30,9 @@ def check_count(name: str, value, minimum: int) -> int:
 @contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None):
     """A ``distributed.Client``: of a new local cluster of ``workers`` processes with one
-    thread each (closed on exit), or connected to the scheduler at ``scheduler``.
+    thread each (closed on exit; their garbage collector set as the command's,
+    ``garbage_collection.collect_less_often``), or connected to the scheduler at
+    ``scheduler`` (its workers' settings left alone).
 
     Raises:
         ConfigError: not exactly one of the two, workers < 1, or no scheduler there.
@@ -50,6 +53,9 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
                     dashboard_address=None, silence_logs=logging.CRITICAL,
                 ))
             client = stack.enter_context(Client(cluster))
+            # the workers are this job's processes: they trace photonflow's programs, as
+            # the command does, with the collector run less often (garbage_collection)
+            client.run(collect_less_often)
         else:
             try:
                 client = stack.enter_context(Client(scheduler, timeout="15s"))
