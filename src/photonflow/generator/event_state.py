@@ -237,26 +237,32 @@ class _EventState:
             length=np.empty(0),
         )
         event_of = self.event_of
+        # rows of each event, in their order: a stable sort by event, cut at the counts
+        by_event = {name: _rows_by_event(event_of[records.track], self.n_events)
+                    for name, records in (("steps", steps), ("deposits", deposits))}
+        by_event["tracks"] = _rows_by_event(event_of, self.n_events)
         # a track's id within its event: its rank among that event's ids
         local = np.empty(event_of.size, dtype=np.int64)
-        for event in range(self.n_events):
-            own = event_of == event
-            local[own] = np.arange(int(own.sum()))
+        for rows in by_event["tracks"]:
+            local[rows] = np.arange(rows.size)
         initial = np.broadcast_to(np.asarray(initial, np.float64), (self.n_events,))
-        return [self._one_event(event, steps, deposits, tracks, local, float(initial[event]))
+        return [self._one_event(event, steps, deposits, tracks, local,
+                                {name: rows[event] for name, rows in by_event.items()},
+                                float(initial[event]))
                 for event in range(self.n_events)]
 
-    def _one_event(self, event, steps, deposits, tracks, local, initial) -> TransportResult:
-        """The records of ``event`` with its own track ids (``local``)."""
-        def select(records, rows):
-            changed = {"track": local[records.track[rows]]} if hasattr(records, "track") else {}
-            kept = {f.name: getattr(records, f.name)[rows] for f in dataclasses.fields(records)}
-            return type(records)(**{**kept, **changed})
+    def _one_event(self, event, steps, deposits, tracks, local, rows, initial
+                   ) -> TransportResult:
+        """The records of ``event`` (``rows`` of its steps, deposits and tracks) with its
+        own track ids (``local``)."""
+        def select(records, chosen):
+            kept = {f.name: getattr(records, f.name)[chosen]
+                    for f in dataclasses.fields(records)}
+            return type(records)(**{**kept, "track": local[kept["track"]]})
 
-        event_of = self.event_of
-        steps = select(steps, event_of[steps.track] == event)
-        deposits = select(deposits, event_of[deposits.track] == event)
-        own = event_of == event
+        steps = select(steps, rows["steps"])
+        deposits = select(deposits, rows["deposits"])
+        own = rows["tracks"]
         parent = tracks.parent[own]
         species = tracks.particle[own]
         event_tracks = Tracks(
@@ -273,3 +279,10 @@ class _EventState:
             escaping=float(self.escaping[event]),
         )
         return TransportResult(steps=steps, deposits=deposits, tracks=event_tracks, budget=budget)
+
+
+def _rows_by_event(events: np.ndarray, n_events: int) -> list[np.ndarray]:
+    """The row indices of each event (``events``: the event of every row), each in
+    increasing order."""
+    order = np.argsort(events, kind="stable")
+    return np.split(order, np.cumsum(np.bincount(events, minlength=n_events))[:-1])
