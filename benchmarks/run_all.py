@@ -36,6 +36,7 @@ BENCHMARKS = {
     "transport": ["transport.py", "--rays", "1024"],
     "first_call": ["first_call.py"],
     "tracks": ["tracks.py"],
+    "generator": ["generator.py"],
 }
 
 
