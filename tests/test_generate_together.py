@@ -78,11 +78,14 @@ def test_events_together_are_distributed_as_events_alone():
 
 
 def test_bad_lists_are_refused_in_one_line():
+    """A wrong entry or a batched ``Track`` is named with its index (or as ``track``)."""
     with pytest.raises(ConfigError, match=r"tracks\[1\] must be a photonflow.generator.Track"):
         generate_together([MIXED[0], "mu-"], 1)
     batch = Track("mu-", [[0.0, 0.0, 0.0]] * 2, [[0.0, 0.0, 1.0]] * 2, [100.0, 200.0])
-    with pytest.raises(ConfigError, match=r"tracks\[0\] is a batch of 2 tracks"):
-        generate_together([batch], 1)
+    with pytest.raises(ConfigError, match=r"tracks\[1\] is a batch of 2 tracks"):
+        generate_together([MIXED[0], batch], 1)
+    with pytest.raises(ConfigError, match=r"^track is a batch of 2 tracks"):
+        generate(batch, 1)
 
 
 def test_sample_together_gives_events_like_sample_events():

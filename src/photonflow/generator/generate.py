@@ -127,13 +127,13 @@ def generate_together(
     """
     tracks = list(tracks)
     for k, track in enumerate(tracks):
+        where = "track" if len(tracks) == 1 else f"tracks[{k}]"
         if not isinstance(track, Track):
-            where = "track" if len(tracks) == 1 else f"tracks[{k}]"
             raise ConfigError(
                 f"{where} must be a photonflow.generator.Track, got {format_value(track)}"
             )
         if np.ndim(track.energy) != 0:
-            raise ConfigError(f"tracks[{k}] is a batch of {np.size(track.energy)} tracks:"
+            raise ConfigError(f"{where} is a batch of {np.size(track.energy)} tracks:"
                               " give one Track per event")
     settings = resolve_settings(settings, changes)
     material = resolve_material(medium)

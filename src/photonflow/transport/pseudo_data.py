@@ -14,6 +14,7 @@ import numbers
 import jax
 import numpy as np
 
+from ..cluster import check_count
 from ..errors import ConfigError, format_value
 from ..generator import GeneratorSettings, Track
 from ..geometry.detector import Detector
@@ -242,8 +243,7 @@ def sample_together(
     for k, track in enumerate(tracks):
         if not isinstance(track, Track):
             raise ConfigError(f"tracks[{k}] = {format_value(track)}: must be a photonflow.Track")
-    if not isinstance(threads, numbers.Integral) or isinstance(threads, bool) or threads < 1:
-        raise ConfigError(f"threads = {format_value(threads)}: must be an integer >= 1")
+    check_count("threads", threads, 1)
     seed, grid, light = _prepare(detector, params, tracks, seed, config, medium, generator)
     bundles = track_photons_together(detector, tracks, seed, light)
     return list(ordered_map(
