@@ -400,3 +400,39 @@ def test_moments_of_a_nearly_dark_run_have_finite_gradients():
     # above the floor the moments move with the light's times
     assert float(jax.grad(moments)(jnp.float32(0.1), jnp.float32(1.0))) > 1.0
     assert LIGHT_FLOOR < 1e-9
+
+
+def test_the_scintillation_indirect_gaussian_starts_after_the_onset():
+    """The scintillation light's merged indirect component (the last of each decay
+    time's group) keeps its charge and mean, and its Gaussian is narrowed to lie
+    ``ONSET_SPREADS`` spreads after the onset (scattered and reflected light cannot
+    arrive before it; a symmetric Gaussian of the whole spread put ~10 % of TAO's
+    indirect light there); the direct pairs and the decay weights are untouched, and
+    the gradients are finite, at the onset too."""
+    from photonflow.transport.track_expected import ONSET_SPREADS, _decayed
+
+    onset = np.array([10.0, 10.0, 10.0])
+    width = DIRECT_COMPONENTS + 2  # direct components, then two indirect ones
+    charge = np.ones((3, width))
+    mean = np.concatenate([np.full((3, DIRECT_COMPONENTS), 12.0),
+                           np.array([[14.0, 16.0], [30.0, 30.0], [10.0, 10.0]])], axis=1)
+    variance = np.concatenate([np.full((3, DIRECT_COMPONENTS), 0.04),
+                               np.array([[9.0, 9.0], [1.0, 1.0], [4.0, 4.0]])], axis=1)
+    times, weights = (2.0, 20.0), (0.7, 0.3)
+    out = [np.asarray(x, np.float64) for x in _decayed(
+        *(jnp.asarray(x) for x in (charge, mean, variance, onset)), times, weights)]
+    groups = DIRECT_COMPONENTS // 2 + 1
+    indirect = [groups * k + groups - 1 for k in range(len(times))]
+    np.testing.assert_allclose(out[0][:, indirect], [2.0 * np.array(weights)] * 3)  # charges
+    np.testing.assert_allclose(out[1][:, indirect[0]], [15.0, 30.0, 10.0])  # means kept
+    np.testing.assert_array_equal(out[3][:, indirect], [times] * 3)
+    # row 0's whole spread (variance 9 + 1 between the two) puts its onset 1.6 sigma
+    # below its mean: narrowed to (15 - 10) / ONSET_SPREADS. Row 1 is far from it
+    # (kept); row 2 sits at the onset (no Gaussian width left)
+    expected = [(5.0 / ONSET_SPREADS) ** 2, 1.0, 0.0]
+    np.testing.assert_allclose(out[2][:, indirect[0]], expected, rtol=1e-5, atol=1e-12)
+    np.testing.assert_allclose(out[2][:, 0], 0.04, rtol=1e-3)  # a direct pair: untouched
+    gradient = jax.grad(lambda m, v: sum(jnp.sum(x) for x in _decayed(
+        jnp.asarray(charge), m, v, jnp.asarray(onset), times, weights)), argnums=(0, 1))(
+        jnp.asarray(mean), jnp.asarray(variance))
+    assert all(np.all(np.isfinite(np.asarray(g))) for g in gradient)

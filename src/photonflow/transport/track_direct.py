@@ -310,6 +310,17 @@ def _sub_disc_offsets(normals, radius):
 LIGHT_FLOOR = 1e-12
 
 
+def _stretch_cuts(emission, extent):
+    """(C - 1,) distances (m) along the track that cut its light into the
+    ``DIRECT_COMPONENTS`` stretches of the direct light's arrival-time components: the
+    model's knots at equal shares of their count, scaled into ``extent`` (m) where the
+    wall ends the light before the model does (a track crossing a small detector gets
+    all C components, not the one or two stretches of the model's first metres)."""
+    knots = emission.fraction.shape[0]
+    bounds = emission.fraction[np.arange(1, DIRECT_COMPONENTS) * knots // DIRECT_COMPONENTS]
+    return bounds * jnp.minimum(emission.extent, extent)
+
+
 def mixed_moments(charge, mean, variance, axis):
     """Moments of the mixture of components (charge, mean, variance) along ``axis``:
     (charge summed, light-weighted mean, variance about it); a mixture with less light
@@ -338,7 +349,9 @@ def _disc_light(positions, normals, radius, *, params, position, direction, time
     fixed = jnp.clip(jnp.asarray(breaks, dtype)[None, :], u_end[:, None],
                      u_start[:, None])
     knots_s = jnp.minimum(emission.fraction * emission.extent, extent)  # (D,)
-    seen = _seen_cos(along[:, None] - knots_s[None, :], across[:, None])
+    cuts = _stretch_cuts(emission, extent)  # (C - 1,) m, panel ends too
+    seen = _seen_cos(along[:, None] - jnp.concatenate([knots_s, cuts])[None, :],
+                     across[:, None])
     ends = jnp.sort(jnp.concatenate([fixed, seen], axis=1), axis=1)  # (N, P + D + ...)
     low, high = ends[:, :-1], ends[:, 1:]
     unit_nodes, unit_weights = (jnp.asarray(x, dtype) for x in _panel_rule())
@@ -364,12 +377,10 @@ def _disc_light(positions, normals, radius, *, params, position, direction, time
     reference = time + travel_time(jnp.linalg.norm(positions - position, axis=-1), params)
     arrival = time + s / SPEED_OF_LIGHT + offset_mean + travel_time(length, params) \
         - reference[:, None]
-    # moment-matched components: the light of DIRECT_COMPONENTS stretches of the track
-    # between its knots (no panel straddles a knot, so a node never changes stretch
-    # while its panel has light)
-    knots = emission.fraction.shape[0]
-    bounds = emission.fraction[np.arange(1, DIRECT_COMPONENTS) * knots // DIRECT_COMPONENTS]
-    stretch = jnp.sum(s[..., None] > bounds * emission.extent, axis=-1)  # (N, M)
+    # moment-matched components: the light of DIRECT_COMPONENTS stretches of the light's
+    # visible part (no panel straddles a cut, so a node never changes stretch while its
+    # panel has light)
+    stretch = jnp.sum(s[..., None] > cuts, axis=-1)  # (N, M)
     member = stretch[..., None] == jnp.arange(DIRECT_COMPONENTS)  # (N, M, C)
     charge, mean, variance = mixed_moments(  # (N, C) each; the other nodes weigh 0
         where(member, light[..., None], 0.0), arrival[..., None],

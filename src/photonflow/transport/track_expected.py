@@ -132,7 +132,8 @@ def track_sensor_light(sensors: Sensors, params, track, model: SplineEmission, s
     charges, means, variances, tau = _skewed_indirect(charges, means, variances, onset)
     if scintillation is not None:
         scintillator = scintillation[0]
-        delayed = _decayed(*parts[1][:3], scintillator.decay_times, scintillator.decay_weights)
+        delayed = _decayed(*parts[1][:3], onset, scintillator.decay_times,
+                           scintillator.decay_weights)
         tau = jnp.concatenate([tau, delayed[3]], axis=1)
         charges, means, variances = (jnp.concatenate([a, b], axis=1) for a, b in
                                      zip((charges, means, variances), delayed[:3],
@@ -293,6 +294,9 @@ def _skewed_indirect(charge, mean, variance, onset):
                                                     tau], axis=1)
 
 
+#: The scintillation light's indirect Gaussian lies this many of its spreads after the
+#: onset (0.6 % of it before).
+ONSET_SPREADS = 2.5
 #: Transport components of the scintillation light before its decay delays: the direct
 #: light's components merged in pairs, and its indirect light as one.
 SCINTILLATION_COMPONENTS = DIRECT_COMPONENTS // 2 + 1
@@ -333,10 +337,14 @@ def _emitted_light(sensors, params, track, direction, length, emission, rays_emi
     return charges, means, variances, residual, start
 
 
-def _decayed(charge, mean, variance, decay_times, decay_weights):
+def _decayed(charge, mean, variance, onset, decay_times, decay_weights):
     """The scintillation light's components (N, C + 2 n_bounces) merged into
     ``SCINTILLATION_COMPONENTS`` (moment-matched), each split into one exponentially
-    modified component per decay time: (charge, mean, variance, tau) (N, 3 x ...)."""
+    modified component per decay time: (charge, mean, variance, tau) (N, 3 x ...). The
+    indirect light's merged Gaussian is narrowed (its mean kept) to lie
+    ``ONSET_SPREADS`` spreads after ``onset`` (N,) ns (``earliest_arrival``): scattered
+    and reflected light cannot arrive before it, and the decay delays, not the
+    Gaussian, carry most of the shape."""
     pairs = [mixed_moments(charge[:, k:k + 2], mean[:, k:k + 2], variance[:, k:k + 2], axis=1)
              for k in range(0, DIRECT_COMPONENTS, 2)]
     pairs.append(mixed_moments(charge[:, DIRECT_COMPONENTS:], mean[:, DIRECT_COMPONENTS:],
@@ -344,6 +352,8 @@ def _decayed(charge, mean, variance, decay_times, decay_weights):
     merged = [jnp.stack(x, axis=1) for x in zip(*pairs, strict=True)]  # 3 x (N, S)
     lit = merged[0] > LIGHT_FLOOR
     merged[1] = where(lit, merged[1], mean[:, :1])
+    delay = jnp.maximum(merged[1][:, -1] - onset, 0.0) / ONSET_SPREADS
+    merged[2] = merged[2].at[:, -1].set(jnp.minimum(merged[2][:, -1], delay * delay))
     outputs = [[], [], [], []]
     for tau, weight in zip(decay_times, decay_weights, strict=True):
         outputs[0].append(weight * merged[0])
