@@ -310,15 +310,19 @@ def _sub_disc_offsets(normals, radius):
 LIGHT_FLOOR = 1e-12
 
 
+def _stretch_knots(emission) -> np.ndarray:
+    """(C - 1,) indices of the model's knots at equal shares of their count."""
+    knots = emission.fraction.shape[0]
+    return np.arange(1, DIRECT_COMPONENTS) * knots // DIRECT_COMPONENTS
+
+
 def _stretch_cuts(emission, extent):
     """(C - 1,) distances (m) along the track that cut its light into the
     ``DIRECT_COMPONENTS`` stretches of the direct light's arrival-time components: the
-    model's knots at equal shares of their count, scaled into ``extent`` (m) where the
-    wall ends the light before the model does (a track crossing a small detector gets
-    all C components, not the one or two stretches of the model's first metres)."""
-    knots = emission.fraction.shape[0]
-    bounds = emission.fraction[np.arange(1, DIRECT_COMPONENTS) * knots // DIRECT_COMPONENTS]
-    return bounds * jnp.minimum(emission.extent, extent)
+    knots of ``_stretch_knots``, scaled into ``extent`` (m) where the wall ends the
+    light before the model does (a track crossing a small detector gets all C
+    components, not the one or two stretches of the model's first metres)."""
+    return emission.fraction[_stretch_knots(emission)] * jnp.minimum(emission.extent, extent)
 
 
 def mixed_moments(charge, mean, variance, axis):
@@ -348,10 +352,12 @@ def _disc_light(positions, normals, radius, *, params, position, direction, time
     # which the sensor sees the model's knots along the track, sorted per sensor
     fixed = jnp.clip(jnp.asarray(breaks, dtype)[None, :], u_end[:, None],
                      u_start[:, None])
+    # the cuts between the components' stretches take the place of the knots they are
+    # (the same where the model's light ends inside the detector)
+    cuts = _stretch_cuts(emission, extent)  # (C - 1,) m
     knots_s = jnp.minimum(emission.fraction * emission.extent, extent)  # (D,)
-    cuts = _stretch_cuts(emission, extent)  # (C - 1,) m, panel ends too
-    seen = _seen_cos(along[:, None] - jnp.concatenate([knots_s, cuts])[None, :],
-                     across[:, None])
+    knots_s = knots_s.at[_stretch_knots(emission)].set(cuts)
+    seen = _seen_cos(along[:, None] - knots_s[None, :], across[:, None])
     ends = jnp.sort(jnp.concatenate([fixed, seen], axis=1), axis=1)  # (N, P + D + ...)
     low, high = ends[:, :-1], ends[:, 1:]
     unit_nodes, unit_weights = (jnp.asarray(x, dtype) for x in _panel_rule())
