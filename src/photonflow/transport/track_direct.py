@@ -42,9 +42,10 @@ sit a few cm from a track; the nearest discs are split into sub-discs anyway).
 The arrival time of the light of node s is t0 + s / c + tau(s) + L n_g / c, with tau the
 emission-time offset of the model (mean and variance per s: the particle's slowing down
 and its secondaries); the direct light is ``DIRECT_COMPONENTS`` Gaussian components, each
-moment-matched to the light of one stretch of the track between its knots, so that a
-sensor that sees a long stretch of track gets the shape of its arrival times, not one
-wide Gaussian.
+moment-matched to the light of one stretch of the part of the track whose light reaches
+the detector (cut at knots of the model, scaled into that part where the wall ends it),
+so that a sensor that sees a long stretch of track gets the shape of its arrival times,
+not one wide Gaussian.
 All of it is the light of a sensor of relative efficiency 1 before
 its time offset. Lengths m, times ns.
 """
@@ -97,8 +98,7 @@ NEAR_FROM = 0.04
 NEAR_FULL = 0.08
 SUB_DISC_RINGS = 3
 #: Arrival-time components of the direct light: the light of this many stretches of the
-#: track (between the model's knots, about equal numbers of knots each), each
-#: moment-matched to its nodes' times.
+#: track's visible part (``_stretch_cuts``), each moment-matched to its nodes' times.
 DIRECT_COMPONENTS = 4
 
 
