@@ -353,7 +353,9 @@ def _disc_light(positions, normals, radius, *, params, position, direction, time
     fixed = jnp.clip(jnp.asarray(breaks, dtype)[None, :], u_end[:, None],
                      u_start[:, None])
     # the cuts between the components' stretches take the place of the knots they are
-    # (the same where the model's light ends inside the detector)
+    # (the same where the model's light ends inside the detector; where the wall ends
+    # it, a panel may straddle those three knots: TAO's crossing muon's first-hit PIT
+    # was the same as with both as panel ends, which cost 14 % more)
     cuts = _stretch_cuts(emission, extent)  # (C - 1,) m
     knots_s = jnp.minimum(emission.fraction * emission.extent, extent)  # (D,)
     knots_s = knots_s.at[_stretch_knots(emission)].set(cuts)
