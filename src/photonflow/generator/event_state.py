@@ -230,12 +230,10 @@ class _EventState:
                 for name, chunks in self.deposits.items()
             }
         )
-        tracks = Tracks(
-            particle=concatenate_rows(self.track_species, None, np.int64),
-            parent=concatenate_rows(self.track_parent, None, np.int64),
-            energy=concatenate_rows(self.track_energy, None),
-            length=np.empty(0),
-        )
+        # every track's (particle, parent, energy at creation), by global id
+        tracks = (concatenate_rows(self.track_species, None, np.int64),
+                  concatenate_rows(self.track_parent, None, np.int64),
+                  concatenate_rows(self.track_energy, None))
         event_of = self.event_of
         # rows of each event, in their order: a stable sort by event, cut at the counts
         by_event = {name: _rows_by_event(event_of[records.track], self.n_events)
@@ -253,8 +251,9 @@ class _EventState:
 
     def _one_event(self, event, steps, deposits, tracks, local, rows, initial
                    ) -> TransportResult:
-        """The records of ``event`` (``rows`` of its steps, deposits and tracks) with its
-        own track ids (``local``)."""
+        """The records of ``event`` (``rows`` of its steps, deposits and ``tracks``, the
+        (particle, parent, energy) arrays by global id) with its own track ids
+        (``local``)."""
         def select(records, chosen):
             kept = {f.name: getattr(records, f.name)[chosen]
                     for f in dataclasses.fields(records)}
@@ -262,13 +261,11 @@ class _EventState:
 
         steps = select(steps, rows["steps"])
         deposits = select(deposits, rows["deposits"])
-        own = rows["tracks"]
-        parent = tracks.parent[own]
-        species = tracks.particle[own]
+        species, parent, energy = (x[rows["tracks"]] for x in tracks)
         event_tracks = Tracks(
             particle=species,
             parent=np.where(parent >= 0, local[np.maximum(parent, 0)], -1),
-            energy=tracks.energy[own],
+            energy=energy,
             length=np.bincount(steps.track, weights=steps.length, minlength=species.size),
         )
         budget = EnergyBudget(
