@@ -29,6 +29,7 @@ from photonflow.reconstruction.minimisers import (
     SLOPED,
     cast_track,
     fit_stages,
+    staged_data,
 )
 
 CONFIG = pf.TransportConfig(n_bounces=0)
@@ -60,7 +61,9 @@ def gradient_fit(toy, sampled_event):
 
 
 def fit_pieces(toy, event, dtype=jnp.float32):
-    """The fit's jitted functions, the mu- emission model and the event's data."""
+    """The fit's jitted functions, the mu- emission model and the event's data, its
+    indirect light held at the truth as in a fit's stages (``staged_data``; with no
+    bounces nothing is held but the programs are the fit's own, compiled once)."""
     from photonflow.reconstruction import fit
 
     detector, params = toy
@@ -68,7 +71,7 @@ def fit_pieces(toy, event, dtype=jnp.float32):
     model = functions.emission("mu-")
     data = dataclasses.replace(fit.event_data(detector, params, event, dtype, functions),
                                emission=model)
-    return functions, model, data
+    return functions, model, staged_data(functions, data, cast_track(TRUTH, dtype), FAST)
 
 
 def test_coordinates_keep_the_vertex_inside(toy):
@@ -279,20 +282,17 @@ def test_the_fit_programs_take_the_large_arrays_as_arguments(toy, sampled_event)
     """The emission model (a 21 MB spline table) and the detector's sensors reach the
     fit's jitted likelihood as arguments: its program holds neither as a constant (with
     them closed over, its text is > 40 MB), and it gives the value of the public
-    predictor."""
-    from photonflow.reconstruction import fit
-
+    predictor (the program and arguments of a fit's ranking of its starts)."""
     detector, params = toy
-    functions = fit.likelihood_functions(detector, jnp.float32, CONFIG)
-    data = fit.event_data(detector, params, sampled_event, jnp.float32, functions)
-    data = dataclasses.replace(data, emission=functions.emission("mu-"))
+    functions, _, data = fit_pieces(toy, sampled_event)
     frame = fit_frame(detector.shape, TRUTH.direction, (50.0, 5000.0), "mu-", 0.0,
                       jnp.float32)
-    track = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), TRUTH)
+    track = cast_track(TRUTH, jnp.float32)
     free = free_from_track(frame, track)
-    program = functions.value.lower(free, frame, track, data).as_text()
+    weight = jnp.float32(1.0)
+    program = functions.value.lower(free, frame, track, data, weight).as_text()
     assert len(program) < 2_000_000
-    value = float(functions.value(free, frame, track, data))
+    value = float(functions.value(free, frame, track, data, weight))
     expected = float(pf.nll(pf.expected(detector, params, TRUTH, config=CONFIG),
                             sampled_event, params, window=CONFIG.window))
     assert value == pytest.approx(expected, rel=1e-4)
@@ -565,25 +565,26 @@ def test_a_fit_at_the_end_of_the_energy_range_is_not_a_minimum():
 
 def test_the_scores_of_many_events_are_their_likelihood_gradients(toy):
     """One linearised prediction contracted with each event's likelihood slopes
-    (``variability.sampled_scores``) gives, for each of 3 simulated events (batched sums
-    of more than two events were wrong under jaxlib 0.10), the gradient of that event's
+    (``variability.sampled_scores``) gives, for each of the simulated events of a fit
+    (``RecoSettings.variability_events``, 16: the fit's own program; batched sums of
+    more than two events were wrong under jaxlib 0.10), the gradient of that event's
     -log L in LOCAL coordinates from the fit's own gradient program."""
     from photonflow.reconstruction import fit
-    from photonflow.reconstruction.minimisers import local_value_and_grad, staged_data
+    from photonflow.reconstruction.minimisers import local_value_and_grad
     from photonflow.reconstruction.variability import sampled_scores
     from photonflow.transport.pseudo_data import sample_together
 
     detector, params = toy
     functions, model, data = fit_pieces(toy, pf.sample(detector, params, TRUTH, seed=3,
                                                        config=CONFIG))
-    track = cast_track(TRUTH, jnp.float32)
-    data = staged_data(functions, data, track, FAST)
+    track = cast_track(TRUTH, jnp.float32)  # the light is held there (fit_pieces)
     frame = fit_frame(detector.shape, track.direction, model.energy_range, "mu-", 0.0,
                       jnp.float32)
-    scores = sampled_scores(functions, detector, params, data, track, frame, n_events=3,
-                            seed=4, config=CONFIG)
+    count = RecoSettings().variability_events
+    scores = sampled_scores(functions, detector, params, data, track, frame,
+                            n_events=count, seed=4, config=CONFIG)
     point = np.asarray(local_from_track(track, jnp.float32), np.float64)
-    simulated = sample_together(detector, params, [track] * 3, 4, config=CONFIG)
+    simulated = sample_together(detector, params, [track] * count, 4, config=CONFIG)
     for k, event in enumerate(simulated):
         own = dataclasses.replace(fit.event_data(detector, params, event, jnp.float32,
                                                  functions), emission=model, held=data.held)
