@@ -9,7 +9,6 @@ Positions m, times ns, charges p.e.
 from __future__ import annotations
 
 import itertools
-import numbers
 
 import jax
 import numpy as np
@@ -202,8 +201,7 @@ def sample_events(
     """
     for name, value, lowest in (("n_events", n_events, 0), ("first_event", first_event, 0),
                                 ("threads", threads, 1)):
-        if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < lowest:
-            raise ConfigError(f"{name} = {format_value(value)}: must be an integer >= {lowest}")
+        check_count(name, value, lowest)
     per_event = isinstance(source, list | tuple)
     distinct = list(source) if per_event else [source]
     if per_event and len(distinct) != n_events:
