@@ -62,8 +62,9 @@ def gradient_fit(toy, sampled_event):
 
 def fit_pieces(toy, event, dtype=jnp.float32):
     """The fit's jitted functions, the mu- emission model and the event's data, its
-    indirect light held at the truth as in a fit's stages (``staged_data``; with no
-    bounces nothing is held but the programs are the fit's own, compiled once)."""
+    indirect light held at the truth as in a fit's stages (``staged_data``: ``CONFIG``
+    has no bounces, so holding changes no value, and the tests run the programs the
+    fit compiled, with the same arguments)."""
     from photonflow.reconstruction import fit
 
     detector, params = toy
