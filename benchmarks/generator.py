@@ -13,17 +13,6 @@ transport. Prints a Markdown table for BENCHMARKS.md.
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
-
-
-def _median_seconds(function, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        began = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - began)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -32,7 +21,7 @@ def main() -> None:
     args = parser.parse_args()
 
     import photonflow as pf
-    from photonflow.benchmarking import machine_description
+    from photonflow.benchmarking import machine_description, median_time
     from photonflow.generator import Track, generate, generate_together
 
     cases = [("16 mu- of 1 GeV, water", Track("mu-", [0, 0, 0], [0, 0, 1], 1000.0), 16,
@@ -44,10 +33,10 @@ def main() -> None:
     print("|---|---:|---:|---:|")
     for name, track, count, medium in cases:
         list(generate_together([track] * 2, 0, medium))  # tables built, code warm
-        alone = _median_seconds(
+        alone = median_time(
             lambda track=track, count=count, medium=medium:
             [generate(track, k, medium) for k in range(count)], args.repeats)
-        together = _median_seconds(
+        together = median_time(
             lambda track=track, count=count, medium=medium:
             list(generate_together([track] * count, 1, medium)), args.repeats)
         print(f"| {name}: generation | {alone:.2f} | {together:.2f} | {alone / together:.1f} |",
@@ -58,10 +47,10 @@ def main() -> None:
     muon = pf.Track("mu-", [1.0, -2.0, 3.0], [0.6, 0.0, 0.8], 1000.0)
     pf.sample_together(detector, params, [muon] * 2, 0)  # compiled, grid built
     list(pf.sample_events(detector, params, muon, 0, 2))
-    alone = _median_seconds(lambda: list(pf.sample_events(detector, params, muon, 1, 64)),
-                            args.repeats)
-    together = _median_seconds(lambda: pf.sample_together(detector, params, [muon] * 64, 1),
-                               args.repeats)
+    alone = median_time(lambda: list(pf.sample_events(detector, params, muon, 1, 64)),
+                        args.repeats)
+    together = median_time(lambda: pf.sample_together(detector, params, [muon] * 64, 1),
+                           args.repeats)
     print(f"| 64 mu- of 1 GeV in SK: pseudo-data | {alone:.2f} | {together:.2f} |"
           f" {alone / together:.1f} |")
 

@@ -23,7 +23,9 @@ from .errors import ConfigError
 TRANSPORT_CASES = ("centre", "2 m from barrel")
 
 
-def _median_time(function: Callable[[], object], repeats: int) -> float:
+def median_time(function: Callable[[], object], repeats: int) -> float:
+    """Median wall time (s) of ``repeats`` calls of ``function`` (no warm-up: call it
+    once before where compilation or caches would count)."""
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
@@ -67,7 +69,7 @@ def transport_case(detector_name: str, case: str, photons: float, repeats: int,
     start = time.perf_counter()
     jax.block_until_ready(forward(params, jax.random.key(0)).charge)
     compile_forward = time.perf_counter() - start
-    t_forward = _median_time(
+    t_forward = median_time(
         lambda: jax.block_until_ready(forward(params, jax.random.key(0)).charge), repeats)
 
     event = sample_event(detector, params, source, 1, config=config)
@@ -79,7 +81,7 @@ def transport_case(detector_name: str, case: str, photons: float, repeats: int,
     start = time.perf_counter()
     jax.block_until_ready(value_and_grad(params))
     compile_grad = time.perf_counter() - start
-    t_grad = _median_time(lambda: jax.block_until_ready(value_and_grad(params)), repeats)
+    t_grad = median_time(lambda: jax.block_until_ready(value_and_grad(params)), repeats)
 
     charges = np.stack([np.asarray(forward(params, jax.random.key(k)).charge)
                         for k in range(5)])
@@ -89,7 +91,7 @@ def transport_case(detector_name: str, case: str, photons: float, repeats: int,
 
     key = jax.random.key(7)
     sample_photons(detector, params, source, key, config=config, grid=grid)  # compile
-    t_sample = _median_time(
+    t_sample = median_time(
         lambda: sample_photons(detector, params, source, key, config=config, grid=grid), 3
     )
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
